@@ -1,0 +1,26 @@
+# taichi_cloth: every target sets up .venv from requirements.txt on first use.
+PYTHON ?= python3
+VENV := .venv
+PY := $(VENV)/bin/python
+SCENE ?= hula
+ARGS ?=
+STAMP := $(VENV)/.installed
+
+.PHONY: setup simulate render video compare bench test clean
+
+$(STAMP): requirements.txt
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -r requirements.txt
+	touch $(STAMP)
+
+setup: $(STAMP)
+
+simulate: setup
+	$(PY) -m taichi_cloth simulate $(SCENE) $(ARGS)
+
+test: setup
+	$(PY) -m pytest -q tests
+
+clean:
+	find output -mindepth 1 ! -name .gitkeep -exec rm -rf {} +

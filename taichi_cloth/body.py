@@ -1,0 +1,423 @@
+"""Kinematic dancer body: a capsule skeleton performing a procedural hula.
+
+The body is a set of bones, each modelled for collision as capsules (a
+segment a-b plus a radius r), after Sakoma et al., "Attempt of Cloth
+Animation by Considering the Collision with the Object II": the layout
+``"coarse"`` (their Fig. 3) uses one capsule per bone, ``"split"`` (their
+Fig. 4) splits the back in 2, each thigh in 3 and each shin in 2, with the
+sub-capsules of one bone tiling its segment and their radii tapering.
+
+Coordinates: SI metres and seconds, y up, the dancer stands at the origin
+on the ground plane y = 0, faces +z, her left is +x.  All lengths below are
+for an adult woman of 1.6 m and are multiplied by ``Body.scale``.
+
+Skeleton (rest pose, ``scale = 1``)::
+
+    head top          1.59 m      (display only)
+    shoulders/neck    1.33 m      back bone: waist centre -> neck base
+    waist centre      0.99 m      pelvis frame origin, skirt waist circle
+    hip joints        0.82 m      x = +-0.09 m
+    knees             ~0.43 m     thigh 0.39 m, shin 0.365 m, knees bent 13 deg
+    ankles            0.07 m
+
+Motion ``"hula"``: the kaholo (step right, close left, step right, touch
+left, then the mirror to the left; the hips sway over the weight-bearing
+foot and tilt so that the weight-side hip is higher) plus the 'ami hip
+circle, the pelvis sinking into the bent-knee hula stance.  Each leg follows
+its foot target by analytic two-bone inverse kinematics with the knee
+pointing forward, so a lower pelvis bends the knees.  Every channel is a
+finite sum of sinusoids of the beat phase, so the dance is C-infinity and
+repeats exactly every ``LOOP_BEATS`` beats; a quintic smoothstep envelope
+eases it in from the rest pose.
+
+Velocities are exact derivatives computed by the complex step: for a
+function f analytic in t, f'(t) = Im f(t + i h) / h + O(h^2) with no
+subtractive cancellation, so h = 1e-20 s gives them to machine precision.
+The pose code therefore uses only complex-analytic operations (no abs, no
+norms, branches only on real parts).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from types import MappingProxyType
+
+import numpy as np
+
+MOTION_NAMES = ("still", "hula")
+CAPSULE_LAYOUT_NAMES = ("coarse", "split")
+
+# --- rest skeleton, metres at scale 1 ---------------------------------------
+WAIST_HEIGHT = 0.99  # y of the waist circle centre = pelvis frame origin
+WAIST_RADIUS = 0.17  # radius of the circle the skirt's top ring is pinned on
+HIP_JOINT_LOCAL = (0.09, -0.17, 0.0)  # left hip joint in the pelvis frame (right: x negated)
+THIGH_LENGTH = 0.39  # hip joint -> knee
+SHIN_LENGTH = 0.365  # knee -> ankle
+ANKLE_HEIGHT = 0.07  # y of the ankle joints with the feet flat
+BACK_LENGTH = 0.34  # waist centre -> neck base
+PELVIS_HALF_WIDTH = 0.07  # half length of the horizontal pelvis segment
+PELVIS_CENTRE_LOCAL = (0.0, -0.12, -0.015)  # pelvis segment midpoint in the pelvis frame
+KNEE_FLEXION_MIN = np.radians(3.0)  # the legs never straighten beyond this, rad
+LEG_REACH_SOFTNESS = 0.001  # width of the soft reach limit, m
+
+# --- collision capsules: per bone kind, the tiles (name suffix, radius in m) --
+_CAPSULE_TILES = MappingProxyType({
+    "coarse": MappingProxyType({
+        "pelvis": (("", 0.115),),
+        "back": (("", 0.115),),
+        "thigh": (("", 0.072),),
+        "shin": (("", 0.045),),
+    }),
+    "split": MappingProxyType({
+        "pelvis": (("", 0.115),),
+        "back": (("lower", 0.11), ("upper", 0.12)),
+        "thigh": (("0", 0.085), ("1", 0.07), ("2", 0.057)),
+        "shin": (("0", 0.05), ("1", 0.037)),
+    }),
+})
+# bones in capsule order: (bone name, bone kind); the bone index is the position here
+_BONES = (
+    ("pelvis", "pelvis"),
+    ("back", "back"),
+    ("thigh_left", "thigh"),
+    ("thigh_right", "thigh"),
+    ("shin_left", "shin"),
+    ("shin_right", "shin"),
+)
+
+# --- display capsules (rendering only, not collided) --------------------------
+DISPLAY_CAPSULE_NAMES = (
+    "neck", "head", "upper_arm_left", "upper_arm_right",
+    "forearm_left", "forearm_right", "foot_left", "foot_right",
+)
+_DISPLAY_CAPSULE_RADIUS = (0.05, 0.09, 0.04, 0.04, 0.032, 0.032, 0.03, 0.03)
+_NECK_TOP_LOCAL = (0.0, 0.08, 0.0)  # chest frame, origin at the neck base
+_HEAD_SEGMENT_LOCAL = ((0.0, 0.14, 0.01), (0.0, 0.17, 0.01))
+_SHOULDER_LOCAL = (0.17, -0.03, 0.0)  # left shoulder in the chest frame
+_UPPER_ARM_LOCAL = (0.17, -0.20, 0.08)  # left shoulder -> elbow, arms held out (hula)
+_FOREARM_LOCAL = (0.13, -0.03, 0.20)  # left elbow -> wrist
+_FOOT_WORLD = (0.0, -0.04, 0.14)  # ankle -> toe, feet face +z
+
+# --- dance, at amplitude 1 ---------------------------------------------------
+LOOP_BEATS = 8  # the kaholo right-and-back; the dance repeats after this many beats
+HIP_CIRCLE_BEATS = 4  # one 'ami circle takes this many beats
+STEP_LENGTH = 0.12  # kaholo side step, m
+FOOT_LIFT = 0.02  # ankle rise of the stepping foot, m
+HIP_SWAY = 0.06  # lateral pelvis shift over the weight foot, m
+HIP_CIRCLE_RADIUS = 0.035  # 'ami circle of the pelvis, m
+PELVIS_SINK = 0.015  # the pelvis settles this much into the bent-knee stance, m
+PELVIS_DIP = 0.01  # extra drop of the pelvis between beats (weight transfer), m
+PELVIS_ROLL = np.radians(5.0)  # hip tilt, weight-side hip up, rad
+PELVIS_YAW = np.radians(4.0)  # pelvis twist with the hip circle, rad
+PELVIS_PITCH = np.radians(3.0)  # pelvic tuck with the hip circle, rad
+BACK_COUNTER = 0.6  # the chest moves only (1 - this) of the pelvis's sideways shift
+
+# kaholo keyframes at beats 0..7 (beat 8 = beat 0): foot positions in steps
+# towards her right (-x) and the weight side (+1 left, -1 right).
+#   beat: 1 step R, 2 close L, 3 step R, 4 touch L, 5 step L, 6 close R, 7 step L, 8 touch R
+KAHOLO_STEP_LEFT = (0, 0, 1, 1, 2, 1, 1, 0)
+KAHOLO_STEP_RIGHT = (0, 1, 1, 2, 2, 2, 1, 1)
+KAHOLO_WEIGHT_SIDE = (1, -1, 1, -1, -1, 1, -1, 1)
+KAHOLO_SAMPLES_PER_BEAT = 64  # sampling of the keyframed channels for the Fourier fit
+KAHOLO_HARMONICS = 40  # sinusoids kept per channel (5 per beat)
+
+COMPLEX_STEP = 1e-20  # s, imaginary time step of the complex-step derivative
+
+
+def _smoothstep(s):
+    """Quintic smoothstep S(s) = 6 s^5 - 15 s^4 + 10 s^3: S, S', S'' = 0, 0, 0 at s = 0 and 1, 0, 0 at s = 1."""
+    return s * s * s * (10.0 - 15.0 * s + 6.0 * s * s)
+
+
+def _kaholo_series() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Fourier coefficients of the kaholo channels over one loop of ``LOOP_BEATS`` beats.
+
+    Channels (dimensionless, scaled later): 0 left-foot step, 1 right-foot step (steps to
+    her right), 2 left-foot lift, 3 right-foot lift (0..1), 4 weight side (+1 left).  Each is
+    keyframed at whole beats and eased between keys by the C2 quintic smoothstep; a foot
+    whose key changes lifts by 4 S (1 - S).  The sampled channels are fitted by
+        f(phi) = c0 + sum_k a_k cos(k phi) + b_k sin(k phi),   phi = 2 pi beat / LOOP_BEATS,
+    truncated at ``KAHOLO_HARMONICS`` (exact discrete Fourier coefficients of the samples),
+    so the fitted dance is C-infinity and exactly periodic.  The step channels are shifted
+    so the dancer's mean position over a loop is the origin.
+
+    Returns (c0 (5,), a (5, K), b (5, K)).
+    """
+    sample_count = LOOP_BEATS * KAHOLO_SAMPLES_PER_BEAT
+    beat = np.arange(sample_count) / KAHOLO_SAMPLES_PER_BEAT
+    beat_index = np.floor(beat).astype(int)
+    ease = _smoothstep(beat - beat_index)
+
+    def keyed(keys):
+        key = np.asarray(keys, dtype=float)
+        return key[beat_index] + (np.roll(key, -1) - key)[beat_index] * ease
+
+    def lift(keys):
+        key = np.asarray(keys, dtype=float)
+        return (np.roll(key, -1) != key)[beat_index] * 4.0 * ease * (1.0 - ease)
+
+    channels = np.stack([
+        keyed(KAHOLO_STEP_LEFT), keyed(KAHOLO_STEP_RIGHT),
+        lift(KAHOLO_STEP_LEFT), lift(KAHOLO_STEP_RIGHT),
+        keyed(KAHOLO_WEIGHT_SIDE),
+    ])
+    spectrum = np.fft.rfft(channels, axis=1) / sample_count
+    constant = spectrum[:, 0].real.copy()
+    constant[:2] -= 0.5 * (constant[0] + constant[1])
+    harmonics = spectrum[:, 1:KAHOLO_HARMONICS + 1]
+    return constant, 2.0 * harmonics.real, -2.0 * harmonics.imag
+
+
+def _rotation_x(angle):
+    """Rotation matrix about +x by ``angle`` (rad)."""
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+
+def _rotation_y(angle):
+    """Rotation matrix about +y by ``angle`` (rad)."""
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+def _rotation_z(angle):
+    """Rotation matrix about +z by ``angle`` (rad)."""
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def _row_dot(u, v):
+    """Row-wise dot product of (N, 3) arrays without conjugation (complex-step safe)."""
+    return np.sum(u * v, axis=-1)
+
+
+def _leg_reach() -> float:
+    """Longest hip-ankle distance allowed, m (scale 1): knee flexed by ``KNEE_FLEXION_MIN``.
+
+    D_max^2 = L1^2 + L2^2 + 2 L1 L2 cos(flexion_min).
+    """
+    return float(np.sqrt(THIGH_LENGTH**2 + SHIN_LENGTH**2
+                         + 2.0 * THIGH_LENGTH * SHIN_LENGTH * np.cos(KNEE_FLEXION_MIN)))
+
+
+def _leg_inverse_kinematics(hip, foot_target, knee_direction):
+    """Two-bone IK: knee and ankle (N, 3) for hips and ankle targets (N, 3), metres at scale 1.
+
+    With d = target - hip, D = |d| softly limited to the reach D_max
+        D' = D_max - w softplus((D_max - D) / w),   softplus(x) = log(1 + e^x),
+    the knee lies a = (L1^2 - L2^2 + D'^2) / (2 D') along d/D and h = sqrt(L1^2 - a^2)
+    towards ``knee_direction`` (3,) made perpendicular to d; the ankle is hip + D' d/D.
+    The thigh |knee - hip| = L1 and shin |ankle - knee| = L2 hold exactly.
+    """
+    offset = foot_target - hip
+    distance = np.sqrt(_row_dot(offset, offset))
+    axis = offset / distance[:, None]
+    reach = _leg_reach()
+    slack = (reach - distance) / LEG_REACH_SOFTNESS
+    shift = np.maximum(slack.real, 0.0)  # log(1 + e^x) = m + log(e^-m + e^(x-m)) for any m
+    reach_distance = reach - LEG_REACH_SOFTNESS * (shift + np.log(np.exp(-shift) + np.exp(slack - shift)))
+    along = (THIGH_LENGTH**2 - SHIN_LENGTH**2 + reach_distance**2) / (2.0 * reach_distance)
+    across = np.sqrt(THIGH_LENGTH**2 - along**2)
+    bend = knee_direction - (axis @ knee_direction)[:, None] * axis
+    bend = bend / np.sqrt(_row_dot(bend, bend))[:, None]
+    knee = hip + along[:, None] * axis + across[:, None] * bend
+    ankle = hip + reach_distance[:, None] * axis
+    return knee, ankle
+
+
+@dataclass(frozen=True)
+class BodyPose:
+    """The body at one instant.  Positions in metres, velocities in m/s, angular velocity in rad/s.
+
+    ``capsule_*`` rows follow ``Body.capsule_names``; ``display_capsule_*`` rows follow
+    ``DISPLAY_CAPSULE_NAMES``.  The pelvis frame maps local to world points by
+    world = pelvis_rotation @ local + pelvis_position; a point p fixed in it moves with
+    pelvis_velocity + pelvis_angular_velocity x (p - pelvis_position).
+    """
+
+    time: float
+    capsule_a: np.ndarray  # (C, 3) segment start points, m
+    capsule_b: np.ndarray  # (C, 3) segment end points, m
+    capsule_velocity_a: np.ndarray  # (C, 3) d/dt capsule_a, m/s
+    capsule_velocity_b: np.ndarray  # (C, 3) d/dt capsule_b, m/s
+    display_capsule_a: np.ndarray  # (D, 3) m
+    display_capsule_b: np.ndarray  # (D, 3) m
+    pelvis_position: np.ndarray  # (3,) centre of the waist circle, m
+    pelvis_rotation: np.ndarray  # (3, 3) local -> world rotation
+    pelvis_velocity: np.ndarray  # (3,) m/s
+    pelvis_angular_velocity: np.ndarray  # (3,) world frame, rad/s
+
+
+class Body:
+    """A kinematic dancer whose collision capsules the cloth is pushed out of.
+
+    Parameters
+    ----------
+    motion : ``"still"`` (rest pose forever) or ``"hula"`` (kaholo steps with hip sway and
+        'ami hip circles).
+    tempo : beats per minute of the dance (> 0).
+    amplitude : dimensionless size of the hip motion (>= 0); 1 is natural: pelvis sway 6 cm,
+        hip circle radius 3.5 cm, hip tilt 5 deg, yaw 4 deg, pitch 3 deg; the pelvis sinks
+        (1.5 cm + 1 cm dips) as amplitude^2.  The kaholo steps (12 cm, feet lifted 2 cm) do
+        not scale with it.
+    capsules : collision layout, ``"coarse"`` (6 capsules, one per bone) or ``"split"``
+        (13 capsules: back 2, pelvis 1, thighs 3 each, shins 2 each).
+    scale : multiplies every length (1 = a 1.6 m tall woman).
+    ease_in : seconds over which the dance fades in from the rest pose (>= 0), by the C2
+        envelope E(s) = 6 s^5 - 15 s^4 + 10 s^3, s = clamp(t / ease_in, 0, 1).
+
+    Attributes
+    ----------
+    capsule_count, capsule_names, capsule_radius (C,) m : collision capsules.
+    display_capsule_count, display_capsule_radius (D,) m : neck, head, arms, feet.
+    waist_height : m, y of the waist circle (pelvis frame origin) in the rest pose.
+    waist_radius : m, radius of the circle in the pelvis frame the skirt is pinned on.
+    loop_period : s, the dance repeats after this (for t >= ease_in): LOOP_BEATS * 60 / tempo.
+    """
+
+    def __init__(self, motion: str = "hula", tempo: float = 90.0, amplitude: float = 1.0,
+                 capsules: str = "split", scale: float = 1.0, ease_in: float = 1.0):
+        if motion not in MOTION_NAMES:
+            raise ValueError(f"motion={motion!r} is unknown; valid motions: {', '.join(MOTION_NAMES)}")
+        if capsules not in CAPSULE_LAYOUT_NAMES:
+            raise ValueError(
+                f"capsules={capsules!r} is unknown; valid layouts: {', '.join(CAPSULE_LAYOUT_NAMES)}")
+        if not tempo > 0.0:
+            raise ValueError(f"tempo={tempo!r} must be > 0 beats per minute")
+        if not amplitude >= 0.0:
+            raise ValueError(f"amplitude={amplitude!r} must be >= 0")
+        if not scale > 0.0:
+            raise ValueError(f"scale={scale!r} must be > 0")
+        if not ease_in >= 0.0:
+            raise ValueError(f"ease_in={ease_in!r} must be >= 0 seconds")
+        self.motion = motion
+        self.tempo = float(tempo)
+        self.amplitude = float(amplitude)
+        self.capsule_layout = capsules
+        self.scale = float(scale)
+        self.ease_in = float(ease_in)
+        self._dance_gain = 1.0 if motion == "hula" else 0.0
+
+        tiles = _CAPSULE_TILES[capsules]
+        capsule_names, capsule_bone, capsule_fraction, capsule_radius = [], [], [], []
+        for bone_index, (bone_name, bone_kind) in enumerate(_BONES):
+            bone_tiles = tiles[bone_kind]
+            for tile_index, (suffix, radius) in enumerate(bone_tiles):
+                capsule_names.append(f"{bone_name}_{suffix}" if suffix else bone_name)
+                capsule_bone.append(bone_index)
+                capsule_fraction.append((tile_index / len(bone_tiles), (tile_index + 1) / len(bone_tiles)))
+                capsule_radius.append(radius)
+        self.capsule_names = tuple(capsule_names)
+        self.capsule_count = len(capsule_names)
+        self.capsule_radius = self.scale * np.array(capsule_radius)
+        self._capsule_bone = np.array(capsule_bone)  # (C,) index into the bone list
+        self._capsule_fraction = np.array(capsule_fraction)  # (C, 2) tile ends along the bone, 0..1
+
+        self.display_capsule_count = len(DISPLAY_CAPSULE_NAMES)
+        self.display_capsule_radius = self.scale * np.array(_DISPLAY_CAPSULE_RADIUS)
+        self.waist_height = self.scale * WAIST_HEIGHT
+        self.waist_radius = self.scale * WAIST_RADIUS
+        self.loop_period = LOOP_BEATS * 60.0 / self.tempo
+        self._kaholo_constant, self._kaholo_cosine, self._kaholo_sine = _kaholo_series()
+
+    def pose(self, t: float) -> BodyPose:
+        """The body at time ``t`` (s), with exact (complex-step) velocities."""
+        capsule_a, capsule_b, display_a, display_b, pelvis_position, pelvis_rotation = \
+            self._skeleton(complex(t, COMPLEX_STEP))
+        rotation = pelvis_rotation.real
+        spin = (pelvis_rotation.imag / COMPLEX_STEP) @ rotation.T  # dR/dt R^T = [w]x
+        angular_velocity = 0.5 * np.array(
+            [spin[2, 1] - spin[1, 2], spin[0, 2] - spin[2, 0], spin[1, 0] - spin[0, 1]])
+        return BodyPose(
+            time=float(t),
+            capsule_a=self.scale * capsule_a.real,
+            capsule_b=self.scale * capsule_b.real,
+            capsule_velocity_a=self.scale * capsule_a.imag / COMPLEX_STEP,
+            capsule_velocity_b=self.scale * capsule_b.imag / COMPLEX_STEP,
+            display_capsule_a=self.scale * display_a.real,
+            display_capsule_b=self.scale * display_b.real,
+            pelvis_position=self.scale * pelvis_position.real,
+            pelvis_rotation=rotation,
+            pelvis_velocity=self.scale * pelvis_position.imag / COMPLEX_STEP,
+            pelvis_angular_velocity=angular_velocity,
+        )
+
+    def _envelope(self, t):
+        """Ease-in factor E(t) of the dance: 0 at t <= 0, 1 at t >= ease_in, C2 quintic between."""
+        if self.ease_in == 0.0 or t.real >= self.ease_in:
+            return 1.0
+        if t.real <= 0.0:
+            return 0.0
+        return _smoothstep(t / self.ease_in)
+
+    def _kaholo(self, beat):
+        """Unscaled kaholo channels at ``beat`` (see ``_kaholo_series``): steps of the left and
+        right foot (towards her right), their lifts (0..1) and the weight side (+1 left)."""
+        harmonic = np.arange(1, KAHOLO_HARMONICS + 1) * (2.0 * np.pi * beat / LOOP_BEATS)
+        return (self._kaholo_constant
+                + self._kaholo_cosine @ np.cos(harmonic) + self._kaholo_sine @ np.sin(harmonic))
+
+    def _skeleton(self, t):
+        """Capsule, display and pelvis geometry at (complex) time ``t``, metres at scale 1.
+
+        With the beat count beat = tempo t / 60, the loop phase phi = 2 pi beat / LOOP_BEATS,
+        the circle phase psi = 2 pi beat / HIP_CIRCLE_BEATS, the step gain s = E(t) and the
+        sway gain g = amplitude E(t) (both 0 for ``"still"``):
+            feet:   x = +-0.09 - s STEP_LENGTH step_side(phi),  y = ANKLE_HEIGHT + s FOOT_LIFT lift_side(phi)
+            pelvis: x = mean feet x + dx,  dx = g (HIP_SWAY weight(phi) + HIP_CIRCLE_RADIUS cos psi)
+                    y = WAIST_HEIGHT - g amplitude (PELVIS_SINK + PELVIS_DIP (1 - cos 2 pi beat) / 2)
+                    z = dz = g HIP_CIRCLE_RADIUS sin psi
+                    R = Ry(g PELVIS_YAW sin psi) Rz(g PELVIS_ROLL weight(phi)) Rx(-g PELVIS_PITCH sin psi)
+            back:   from the pelvis origin, R_back = Rz(asin(k dx / L)) Rx(asin(-k dz / L)) with
+                    k = BACK_COUNTER, so the chest moves only (1 - k) of the hip sway and circle.
+        The sway lengthens the legs by ~ dx^2 / (2 leg), so the sink grows as amplitude^2 to
+        keep the knees bent at any amplitude.
+        """
+        step_gain = self._dance_gain * self._envelope(t)
+        sway_gain = self.amplitude * step_gain
+        beat = self.tempo * t / 60.0
+        circle_phase = 2.0 * np.pi * beat / HIP_CIRCLE_BEATS
+        step_left, step_right, lift_left, lift_right, weight_side = self._kaholo(beat)
+
+        hip_x = HIP_JOINT_LOCAL[0]
+        foot_target = np.array([
+            [hip_x - step_gain * STEP_LENGTH * step_left, ANKLE_HEIGHT + step_gain * FOOT_LIFT * lift_left, 0],
+            [-hip_x - step_gain * STEP_LENGTH * step_right, ANKLE_HEIGHT + step_gain * FOOT_LIFT * lift_right, 0],
+        ])
+        pelvis_shift_x = sway_gain * (HIP_SWAY * weight_side + HIP_CIRCLE_RADIUS * np.cos(circle_phase))
+        pelvis_shift_z = sway_gain * HIP_CIRCLE_RADIUS * np.sin(circle_phase)
+        pelvis_dip = PELVIS_DIP * 0.5 * (1.0 - np.cos(2.0 * np.pi * beat))
+        pelvis_sink = sway_gain * self.amplitude * (PELVIS_SINK + pelvis_dip)
+        pelvis_position = np.array([
+            0.5 * (foot_target[0, 0] + foot_target[1, 0]) + pelvis_shift_x,
+            WAIST_HEIGHT - pelvis_sink,
+            pelvis_shift_z,
+        ])
+        pelvis_rotation = (_rotation_y(sway_gain * PELVIS_YAW * np.sin(circle_phase))
+                           @ _rotation_z(sway_gain * PELVIS_ROLL * weight_side)
+                           @ _rotation_x(-sway_gain * PELVIS_PITCH * np.sin(circle_phase)))
+
+        mirror = np.array([-1.0, 1.0, 1.0])  # left -> right
+        hip = pelvis_position + np.array([HIP_JOINT_LOCAL, mirror * HIP_JOINT_LOCAL]) @ pelvis_rotation.T
+        knee, ankle = _leg_inverse_kinematics(hip, foot_target, pelvis_rotation[:, 2])
+
+        back_rotation = (_rotation_z(np.arcsin(BACK_COUNTER * pelvis_shift_x / BACK_LENGTH))
+                         @ _rotation_x(np.arcsin(-BACK_COUNTER * pelvis_shift_z / BACK_LENGTH)))
+        neck_base = pelvis_position + BACK_LENGTH * back_rotation[:, 1]
+        pelvis_half_segment = np.array([[-PELVIS_HALF_WIDTH, 0.0, 0.0], [PELVIS_HALF_WIDTH, 0.0, 0.0]])
+        pelvis_segment = pelvis_position + (np.array(PELVIS_CENTRE_LOCAL) + pelvis_half_segment) @ pelvis_rotation.T
+
+        bone_start = np.stack([pelvis_segment[0], pelvis_position, hip[0], hip[1], knee[0], knee[1]])
+        bone_end = np.stack([pelvis_segment[1], neck_base, knee[0], knee[1], ankle[0], ankle[1]])
+        bone_vector = (bone_end - bone_start)[self._capsule_bone]
+        capsule_a = bone_start[self._capsule_bone] + self._capsule_fraction[:, :1] * bone_vector
+        capsule_b = bone_start[self._capsule_bone] + self._capsule_fraction[:, 1:] * bone_vector
+
+        shoulder = np.array([_SHOULDER_LOCAL, mirror * _SHOULDER_LOCAL])
+        elbow = shoulder + np.array([_UPPER_ARM_LOCAL, mirror * _UPPER_ARM_LOCAL])
+        wrist = elbow + np.array([_FOREARM_LOCAL, mirror * _FOREARM_LOCAL])
+        chest_local_a = np.array([(0.0, 0.0, 0.0), _HEAD_SEGMENT_LOCAL[0], *shoulder, *elbow])
+        chest_local_b = np.array([_NECK_TOP_LOCAL, _HEAD_SEGMENT_LOCAL[1], *elbow, *wrist])
+        display_a = np.concatenate([neck_base + chest_local_a @ back_rotation.T, ankle])
+        display_b = np.concatenate([neck_base + chest_local_b @ back_rotation.T, ankle + _FOOT_WORLD])
+        return capsule_a, capsule_b, display_a, display_b, pelvis_position, pelvis_rotation

@@ -1,0 +1,67 @@
+"""Stability of each integrator on the damped oscillator ẍ = −ω²x − 2ζω·ẋ (ORACLES.md).
+
+One step of a linear method maps (x, v) to G(ωh, ζ)·(x, v); it is stable when the spectral radius
+of G is at most 1. ``largest_stable_step`` finds the largest such h for every mode of a cloth
+from its highest angular frequency ω_max and its damping: springs damped in proportion to their
+stiffness (Rayleigh, c = β·k) give a mode of frequency ω the damping ratio ζ = β·ω/2, so the
+bound is the minimum over ω ∈ (0, ω_max] of the per-mode bound.
+"""
+
+import numpy as np
+
+
+def system_matrix(omega: float, zeta: float) -> np.ndarray:
+    """d/dt (x, v) = A (x, v) for the damped oscillator."""
+    return np.array([[0.0, 1.0], [-omega ** 2, -2.0 * zeta * omega]])
+
+
+def amplification(method: str, omega: float, zeta: float, h: float) -> np.ndarray:
+    """The one-step matrix G of ``method`` ("euler", "symplectic", "rk4", "implicit")."""
+    a = system_matrix(omega, zeta)
+    identity = np.eye(2)
+    if method == "euler":
+        return identity + h * a
+    if method == "symplectic":
+        # v' = v + h·a(x, v);  x' = x + h·v'
+        velocity_update = identity + h * np.array([[0.0, 0.0], a[1]])
+        position_update = np.array([[1.0, h], [0.0, 1.0]])
+        return position_update @ velocity_update
+    if method == "rk4":
+        ha = h * a
+        return identity + ha + ha @ ha / 2 + ha @ ha @ ha / 6 + ha @ ha @ ha @ ha / 24
+    if method == "implicit":
+        return np.linalg.inv(identity - h * a)
+    raise ValueError(f"unknown method {method!r}")
+
+
+def is_stable(method: str, omega: float, zeta: float, h: float) -> bool:
+    radius = max(abs(np.linalg.eigvals(amplification(method, omega, zeta, h))))
+    return radius <= 1.0 + 1e-12
+
+
+def mode_step_limit(method: str, omega: float, zeta: float, h_max: float = 1e3) -> float:
+    """Largest h with a stable step for one mode (scan up in factors of 1.05, then bisect).
+    Returns ``h_max`` when every step up to it is stable, 0 when none is."""
+    h = 1e-4 / omega
+    if not is_stable(method, omega, zeta, h):
+        return 0.0
+    while h < h_max and is_stable(method, omega, zeta, h * 1.05):
+        h *= 1.05
+    if h >= h_max:
+        return h_max
+    low, high = h, h * 1.05
+    for _ in range(40):
+        middle = 0.5 * (low + high)
+        low, high = (middle, high) if is_stable(method, omega, zeta, middle) else (low, middle)
+    return low
+
+
+def largest_stable_step(method: str, omega_max: float, damping_time: float,
+                        extra_damping_ratio: float = 0.0) -> float:
+    """Largest stable h [s] for all modes up to ω_max [rad/s] with Rayleigh damping time β [s]
+    (ζ = β·ω/2 + extra_damping_ratio). 0 when no step is stable (undamped explicit Euler)."""
+    limits = []
+    for omega in np.geomspace(omega_max * 1e-3, omega_max, 25):
+        zeta = 0.5 * damping_time * omega + extra_damping_ratio
+        limits.append(mode_step_limit(method, omega, zeta))
+    return float(min(limits))

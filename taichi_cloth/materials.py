@@ -1,0 +1,121 @@
+"""Fabric presets from KES-style measurements, and their mapping to per-spring constants.
+
+The seed paper (§2.2) models cloth by four of the Kawabata Evaluation System (KES) properties:
+tensile, shear, bending and weight. A preset stores those measurements in KES units, as the
+literature tabulates them, and converts them to SI continuum constants:
+
+- weight W [mg/cm²]                → areal density ρ = W · 0.01            [kg/m²]
+- tensile extension EMT [%] at the KES load of 500 gf/cm = 490.3 N/m
+                                    → membrane stiffness k_m = 490.3 / (EMT/100)   [N/m]
+- shear rigidity G [gf/(cm·deg)]   → shear modulus G_si = G · 0.0980665/0.01 · 180/π  [N/m]
+- bending rigidity B [gf·cm²/cm]   → B_si = B · 0.0980665e-4 / 0.01 = B · 9.80665e-5 [N·m]
+
+Typical values: Kawabata & Niwa, "Fabric performance in clothing and clothing manufacture"
+(J. Text. Inst. 80, 1989) and Inoue, Sen'i Gakkaishi 64(8), 2008 (the seed's ref. 5); each preset
+is a representative mid-range fabric of its kind, not one measured sample.
+
+Mapping to springs (``spring_constants``), for a grid with spacing dx (along a row) and dz (down
+a column), so that refining the grid keeps the cloth's behaviour:
+
+- stretch spring along x, length dx, stands for a strip of width dz:  k = k_m · dz / dx.
+  On a square grid k = k_m whatever the spacing; the particle mass ρ·dx·dz shrinks with the cell,
+  so the wave speed √(k_m/ρ) is resolution independent.
+- shear: the two diagonals of a square cell, each with k = G_si, give the cell the small-strain
+  shear modulus G_si (energy ½·G·γ² per unit area).
+- bend: skip-one springs of length 2h. Their energy ½·k·δ² with k = B_si / h² has the scaling of
+  the discrete quadratic bending energy (Bergou et al. 2006), so a refined grid is not stiffer;
+  a straight skip-one spring has no linear bending stiffness, so this is a stand-in for B, not an
+  exact discretisation of it.
+- dashpots: stiffness-proportional (Rayleigh) damping, c = β · k [N·s/m] per spring, β [s] from the
+  preset. A mode of angular frequency ω is damped with ratio ζ = β·ω/2, the same for every
+  resolution.
+"""
+
+from dataclasses import dataclass
+
+KES_LOAD_N_PER_M = 490.3325  # 500 gf/cm in N/m
+GRAM_FORCE_N = 9.80665e-3
+
+
+@dataclass(frozen=True)
+class Material:
+    """A fabric in SI units.
+
+    density: areal density [kg/m²]; stretch_stiffness: membrane stiffness k_m [N/m];
+    shear_stiffness: in-plane shear modulus [N/m]; bend_stiffness: bending rigidity [N·m];
+    damping: stiffness-proportional damping time β [s]; thickness: cloth thickness [m].
+    """
+
+    name: str
+    density: float
+    stretch_stiffness: float
+    shear_stiffness: float
+    bend_stiffness: float
+    damping: float
+    thickness: float
+    description: str = ""
+
+
+@dataclass(frozen=True)
+class KesMeasurement:
+    """KES-FB values as published: W [mg/cm²], EMT [%], G [gf/(cm·deg)], B [gf·cm²/cm], T [mm]."""
+
+    weight: float
+    extension: float
+    shear_rigidity: float
+    bending_rigidity: float
+    thickness: float
+
+
+def material_from_kes(name: str, kes: KesMeasurement, damping: float, description: str) -> Material:
+    """Convert KES units to SI (the formulas in this module's docstring)."""
+    degrees_per_radian = 180.0 / 3.141592653589793
+    return Material(
+        name=name,
+        density=kes.weight * 0.01,
+        stretch_stiffness=KES_LOAD_N_PER_M / (kes.extension / 100.0),
+        shear_stiffness=kes.shear_rigidity * GRAM_FORCE_N / 0.01 * degrees_per_radian,
+        bend_stiffness=kes.bending_rigidity * GRAM_FORCE_N * 1e-4 / 0.01,
+        damping=damping,
+        thickness=kes.thickness * 1e-3,
+        description=description,
+    )
+
+
+PRESETS: dict[str, Material] = {
+    m.name: m
+    for m in (
+        material_from_kes("cotton", KesMeasurement(13.0, 4.0, 0.9, 0.08, 0.40), 2e-5,
+                          "plain-weave cotton shirting, ~130 g/m²"),
+        material_from_kes("silk", KesMeasurement(6.0, 6.0, 0.4, 0.02, 0.20), 2e-5,
+                          "silk habutai, light and supple, ~60 g/m²"),
+        material_from_kes("denim", KesMeasurement(40.0, 3.0, 3.0, 0.80, 0.90), 3e-5,
+                          "12 oz cotton denim twill, heavy and stiff, ~400 g/m²"),
+        material_from_kes("wool", KesMeasurement(22.0, 8.0, 0.6, 0.10, 0.60), 3e-5,
+                          "worsted wool suiting, ~220 g/m²"),
+        material_from_kes("polyester", KesMeasurement(10.0, 3.0, 0.7, 0.05, 0.25), 1.5e-5,
+                          "plain-weave polyester, ~100 g/m²"),
+    )
+}
+
+
+@dataclass(frozen=True)
+class SpringConstants:
+    """Per-spring stiffness [N/m] of each family and the Rayleigh damping time β [s]."""
+
+    stretch_x: float
+    stretch_z: float
+    shear: float
+    bend: float
+    damping_time: float
+
+
+def spring_constants(material: Material, spacing_x: float, spacing_z: float) -> SpringConstants:
+    """Per-spring constants for a grid with spacings dx, dz [m] (module docstring for the why)."""
+    return SpringConstants(
+        stretch_x=material.stretch_stiffness * spacing_z / spacing_x,
+        stretch_z=material.stretch_stiffness * spacing_x / spacing_z,
+        shear=material.shear_stiffness,
+        bend=material.bend_stiffness / (spacing_x * spacing_z),
+        damping_time=material.damping,
+    )

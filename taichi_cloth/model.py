@@ -1,0 +1,169 @@
+"""Model (what never changes during a run) and State (what the integrators write).
+
+As in warp/newton's ``Model``/``State`` split: the model holds inverse masses, springs, rest
+lengths, stiffnesses and the gather lists; ``model.state()`` makes a fresh state (positions and
+velocities) and the substep loop swaps two of them. Fields are allocated once, from NumPy.
+
+Forces are gathered, never scattered: every particle owns the list of its springs
+(``particle_spring_start``/``particle_spring``/``particle_neighbor``) and of its triangles, so a
+force is a sum in a fixed order and a run is bit-reproducible on the CPU (no atomic float adds).
+
+A pinned particle has inverse mass 0 and follows the pin frame: its position is
+R · pin_local + origin, its velocity v_origin + ω × (x − origin). The frame is identity for a
+static pin and moves with the pelvis for a worn skirt.
+"""
+
+import numpy as np
+import taichi as ti
+
+from .garment import Garment
+
+FAMILY_ORDER = ("stretch", "shear", "bend")
+
+
+def real_type(precision: str):
+    """Taichi float type for the scene's ``simulation.precision``."""
+    return ti.f64 if precision == "f64" else ti.f32
+
+
+def gather_lists(pairs: np.ndarray, particle_count: int):
+    """CSR lists of what each particle touches: (start (N+1,), item (K,), other (K,)).
+
+    For springs: item = spring index, other = the particle at its other end. Entries of one
+    particle keep the order of ``pairs`` (a stable sort), so sums over them are reproducible.
+    """
+    owner = np.concatenate([pairs[:, 0], pairs[:, 1]])
+    item = np.concatenate([np.arange(len(pairs))] * 2)
+    other = np.concatenate([pairs[:, 1], pairs[:, 0]])
+    order = np.argsort(owner, kind="stable")
+    start = np.searchsorted(owner[order], np.arange(particle_count + 1)).astype(np.int32)
+    return start, item[order].astype(np.int32), other[order].astype(np.int32)
+
+
+def triangle_gather_lists(triangles: np.ndarray, particle_count: int):
+    """CSR lists of the triangles around each particle: (start (N+1,), triangle (K,))."""
+    owner = triangles.ravel()
+    triangle = np.repeat(np.arange(len(triangles)), 3)
+    order = np.argsort(owner, kind="stable")
+    start = np.searchsorted(owner[order], np.arange(particle_count + 1)).astype(np.int32)
+    return start, triangle[order].astype(np.int32)
+
+
+@ti.data_oriented
+class State:
+    """Positions x [m] and velocities v [m/s], shape [particle_count]."""
+
+    def __init__(self, particle_count: int, real):
+        self.x = ti.Vector.field(3, real, particle_count)
+        self.v = ti.Vector.field(3, real, particle_count)
+
+    def copy_from(self, other: "State") -> None:
+        self.x.copy_from(other.x)
+        self.v.copy_from(other.v)
+
+
+@ti.data_oriented
+class Model:
+    """Static cloth data in Taichi fields.
+
+    particle_mass [kg] and particle_inv_mass [1/kg] (0 for pinned), shape [particle_count];
+    spring_ends (i, j), spring_rest_length [m], spring_stiffness [N/m], spring_damping [N·s/m],
+    shape [spring_count], ordered stretch, shear, bend (the first ``stretch_count`` are stretch);
+    triangles, shape [triangle_count]; pin_local [m], the pinned positions in the pin frame.
+    """
+
+    def __init__(self, garment: Garment, precision: str = "f32", damping_scale: float | None = None):
+        """damping_scale: None compiles no dashpots; else c = scale · β · k per spring."""
+        self.real = real_type(precision)
+        self.numpy_real = np.float64 if precision == "f64" else np.float32
+        self.garment = garment
+        self.particle_count = garment.particle_count
+        self.has_dashpots = damping_scale is not None
+        families = [f for f in FAMILY_ORDER if f in garment.springs]
+        ends = np.concatenate([garment.springs[f] for f in families]).astype(np.int32)
+        stiffness = np.concatenate([garment.spring_stiffness[f] for f in families])
+        self.family_counts = {f: len(garment.springs[f]) for f in families}
+        self.stretch_count = self.family_counts.get("stretch", 0)
+        self.spring_count = len(ends)
+        self.triangle_count = len(garment.triangles)
+        rest_length = np.linalg.norm(garment.positions[ends[:, 1]] - garment.positions[ends[:, 0]],
+                                     axis=1)
+        inv_mass = np.where(garment.pinned, 0.0, 1.0 / garment.mass)
+
+        n, real = self.particle_count, self.real
+        self.particle_mass = ti.field(real, n)
+        self.particle_inv_mass = ti.field(real, n)
+        self.spring_ends = ti.Vector.field(2, ti.i32, self.spring_count)
+        self.spring_rest_length = ti.field(real, self.spring_count)
+        self.spring_stiffness = ti.field(real, self.spring_count)
+        self.spring_damping = ti.field(real, self.spring_count)
+        spring_start, spring_item, spring_other = gather_lists(ends, n)
+        self.particle_spring_start = ti.field(ti.i32, n + 1)
+        self.particle_spring = ti.field(ti.i32, len(spring_item))
+        self.particle_neighbor = ti.field(ti.i32, len(spring_item))
+        self.triangles = ti.Vector.field(3, ti.i32, self.triangle_count)
+        triangle_start, triangle_item = triangle_gather_lists(garment.triangles, n)
+        self.particle_triangle_start = ti.field(ti.i32, n + 1)
+        self.particle_triangle = ti.field(ti.i32, len(triangle_item))
+        self.pin_local = ti.Vector.field(3, real, n)
+        self.pin_rotation = ti.Matrix.field(3, 3, real, ())
+        self.pin_origin = ti.Vector.field(3, real, ())
+        self.pin_velocity = ti.Vector.field(3, real, ())
+        self.pin_angular_velocity = ti.Vector.field(3, real, ())
+
+        self.particle_mass.from_numpy(self._real(garment.mass))
+        self.particle_inv_mass.from_numpy(self._real(inv_mass))
+        self.spring_ends.from_numpy(ends)
+        self.spring_rest_length.from_numpy(self._real(rest_length))
+        self.spring_stiffness.from_numpy(self._real(stiffness))
+        self.spring_damping.from_numpy(
+            self._real((damping_scale or 0.0) * garment.damping_time * stiffness))
+        self.particle_spring_start.from_numpy(spring_start)
+        self.particle_spring.from_numpy(spring_item)
+        self.particle_neighbor.from_numpy(spring_other)
+        self.triangles.from_numpy(garment.triangles)
+        self.particle_triangle_start.from_numpy(triangle_start)
+        self.particle_triangle.from_numpy(triangle_item)
+        self.pin_origin_rest = np.zeros(3)
+        self.pin_local.from_numpy(self._real(garment.positions))
+        self.set_pin_frame(np.eye(3), np.zeros(3), np.zeros(3), np.zeros(3))
+
+        # NumPy copies for per-frame metrics and exports (never touched in the substep loop).
+        self.host_spring_ends = ends
+        self.host_rest_length = rest_length
+        self.host_stiffness = stiffness
+        self.host_mass = garment.mass
+
+    def _real(self, array) -> np.ndarray:
+        """``array`` in the model's float precision, for ``from_numpy``."""
+        return np.ascontiguousarray(array, dtype=self.numpy_real)
+
+    def set_pin_local_origin(self, origin: np.ndarray) -> None:
+        """Express the pinned rest positions relative to ``origin`` (the pin frame's rest
+        origin, e.g. the pelvis) so that the frame can carry them."""
+        self.pin_origin_rest = np.asarray(origin, dtype=float)
+        self.pin_local.from_numpy(self._real(self.garment.positions - self.pin_origin_rest))
+        self.set_pin_frame(np.eye(3), self.pin_origin_rest, np.zeros(3), np.zeros(3))
+
+    def set_pin_frame(self, rotation, origin, velocity, angular_velocity) -> None:
+        """Pose of the pin frame at the end of the coming step: R (3,3), origin [m],
+        velocity [m/s], angular velocity [rad/s] (world frame)."""
+        self.pin_rotation[None] = self._real(rotation)
+        self.pin_origin[None] = self._real(origin)
+        self.pin_velocity[None] = self._real(velocity)
+        self.pin_angular_velocity[None] = self._real(angular_velocity)
+
+    def state(self) -> State:
+        """A fresh state at the rest positions, at rest."""
+        state = State(self.particle_count, self.real)
+        state.x.from_numpy(self._real(self.garment.positions))
+        state.v.fill(0.0)
+        return state
+
+    @ti.func
+    def pin_target(self, i_p):
+        """Position [m] and velocity [m/s] of pinned particle i_p under the current pin frame."""
+        origin = self.pin_origin[None]
+        position = self.pin_rotation[None] @ self.pin_local[i_p] + origin
+        velocity = self.pin_velocity[None] + self.pin_angular_velocity[None].cross(position - origin)
+        return position, velocity

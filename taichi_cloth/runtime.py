@@ -1,0 +1,25 @@
+"""Starting the one Taichi runtime of a process."""
+
+import contextlib
+import io
+
+import taichi as ti
+
+from .errors import InputError
+
+ARCHES = {"cpu": ti.cpu, "cuda": ti.cuda, "vulkan": ti.vulkan, "gpu": ti.gpu}
+
+
+def taichi_started() -> bool:
+    return ti.lang.impl.get_runtime().prog is not None
+
+
+def start_taichi(arch: str = "cpu") -> None:
+    """``ti.init`` on ``arch`` unless this process already started Taichi (a test session
+    shares one runtime; ``ti.init`` again would drop every field and compiled kernel)."""
+    if taichi_started():
+        return
+    with contextlib.redirect_stdout(io.StringIO()):  # ti.init prints "Starting on arch=..."
+        ti.init(arch=ARCHES[arch], random_seed=0)
+    if arch != "cpu" and ti.lang.impl.current_cfg().arch == ti.cpu:
+        raise InputError(f"--arch {arch}: no {arch} device found (Taichi fell back to the CPU)")

@@ -1,0 +1,187 @@
+"""A scene's simulation: build everything once, then frames × substeps.
+
+Per substep the body (when there is one) moves the pin frame and the capsules, and the
+integrator advances ``state_in → state_out``; the two states swap. No Python loop over particles
+and no copy to the host happens inside the substep loop. Per frame the state is copied to NumPy
+once for the metrics (energies, strain, penetration, centre of mass) and the stability check:
+a non-finite or exploded state stops the run with ``UnstableError`` (exit code 3) before anything
+of that frame is written.
+"""
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import taichi as ti
+
+from .errors import UnstableError
+from .forces import Forces, make_effects, spring_energy, stretch_strain
+from .garment import build_garment
+from .integrators import make_integrator
+from .model import Model
+from .runtime import start_taichi
+from .scene import Scene
+from .timestep import TimeStep, choose_time_step
+
+
+@dataclass
+class FrameMetrics:
+    """One frame's measurements (SI units) as they go into ``stats.json``."""
+
+    frame: int
+    t: float
+    kinetic_energy: float
+    potential_energy: float
+    max_strain: float
+    max_penetration: float
+    center_of_mass: list
+
+    def as_dict(self) -> dict:
+        return dict(self.__dict__)
+
+
+@dataclass
+class RunRecord:
+    """What a run measured: per-frame metrics and wall-clock seconds per phase."""
+
+    frames: list = field(default_factory=list)
+    wall_seconds: dict = field(default_factory=lambda: {"compile": 0.0, "simulate": 0.0})
+
+    @property
+    def max_strain(self) -> float:
+        return max((f.max_strain for f in self.frames), default=0.0)
+
+    @property
+    def max_penetration(self) -> float:
+        return max((f.max_penetration for f in self.frames), default=0.0)
+
+
+class Simulation:
+    """Everything a scene needs to run: model, forces, integrator, states, time step."""
+
+    def __init__(self, scene: Scene, body_rig=None):
+        """body_rig: a ``rig.BodyRig`` when the scene has a body (None for cloth alone)."""
+        start_taichi(scene.simulation.arch)
+        self.scene = scene
+        self.body_rig = body_rig
+        material = scene.material
+        waist_height = body_rig.waist_height if body_rig is not None else None
+        self.garment = build_garment(scene.cloth, material, waist_height, scene.path)
+        damping = scene.effects.get("damping")
+        self.model = Model(self.garment, scene.simulation.precision,
+                           damping.scale if damping is not None else None)
+        extra = body_rig.effects(self.model, scene.effects) if body_rig is not None else {}
+        if body_rig is not None:
+            body_rig.attach(self.model)
+        self.forces = Forces(self.model, make_effects(scene.effects, extra))
+        self.integrator = make_integrator(scene.simulation.integrator, self.forces)
+        self.time_step = self._choose_time_step()
+        self.state_in = self.model.state()
+        self.state_out = self.model.state()
+        self.gravity = scene.effects["gravity"].g if "gravity" in scene.effects else 0.0
+
+    def _choose_time_step(self) -> TimeStep:
+        scene, garment, model = self.scene, self.garment, self.model
+        contact_stiffness = max((getattr(config, "stiffness", 0.0)
+                                 for name, config in scene.effects.items()
+                                 if name in ("collision", "ground")), default=0.0)
+        damping_time = garment.damping_time * scene.effects["damping"].scale \
+            if model.has_dashpots else 0.0
+        return choose_time_step(
+            scene.simulation.dt, 1.0 / scene.scene.fps, scene.simulation.integrator,
+            garment.positions, model.host_spring_ends, model.host_stiffness, garment.mass,
+            ~garment.pinned, damping_time, contact_stiffness, scene.simulation.safety)
+
+    @property
+    def effect_names(self) -> list[str]:
+        return self.forces.compiled_names
+
+    def frame_time(self, frame: int) -> float:
+        """Simulated time [s] at the end of ``frame`` (0-based)."""
+        return (frame + 1) / self.scene.scene.fps
+
+    def positions(self) -> np.ndarray:
+        return self.state_in.x.to_numpy().astype(np.float64)
+
+    def measure(self, frame: int) -> FrameMetrics:
+        """Metrics of the current state; raises ``UnstableError`` if it is not usable."""
+        x = self.positions()
+        v = self.state_in.v.to_numpy().astype(np.float64)
+        mass = self.model.host_mass
+        strain = stretch_strain(self.model, x) if self.model.stretch_count else np.zeros(1)
+        finite = bool(np.isfinite(x).all() and np.isfinite(v).all())
+        max_strain = float(np.max(strain)) if finite else float("nan")
+        blowup = self.scene.simulation.blowup_strain
+        if not finite or max_strain > blowup:
+            what = "became non-finite" if not finite else \
+                f"exploded (max strain {max_strain:.3g} > simulation.blowup_strain {blowup:g})"
+            integrator = self.scene.simulation.integrator
+            advice = "lower simulation.dt or set it to \"auto\""
+            if integrator == "euler":
+                advice += "; explicit Euler also needs [effects.damping], or use \"symplectic\""
+            raise UnstableError(f"frame {frame}: the cloth {what} with integrator '{integrator}' "
+                                f"at dt = {self.time_step.dt:.6g} s; {advice}", frame)
+        kinetic = 0.5 * float(np.sum(mass * np.sum(v * v, axis=1)))
+        potential = self.gravity * float(np.sum(mass * x[:, 1])) + spring_energy(self.model, x)
+        penetration = self.body_rig.max_penetration(x) if self.body_rig is not None else 0.0
+        return FrameMetrics(
+            frame=frame, t=self.frame_time(frame), kinetic_energy=kinetic,
+            potential_energy=potential, max_strain=max_strain, max_penetration=penetration,
+            center_of_mass=[float(c) for c in np.sum(mass[:, None] * x, 0) / np.sum(mass)])
+
+    def advance_substeps(self, frame: int, first: int, end: int) -> None:
+        """Substeps first..end−1 of ``frame`` (a frame runs from t = frame/fps to (frame+1)/fps)."""
+        dt, substeps = self.time_step.dt, self.time_step.substeps_per_frame
+        for substep in range(first, end):
+            t = (frame * substeps + substep) * dt
+            if self.body_rig is not None:
+                self.body_rig.move_to(t, t + dt)
+            self.integrator.step(self.state_in, self.state_out, t, dt)
+            self.state_in, self.state_out = self.state_out, self.state_in
+
+    def run(self, frame_count: int, on_frame=None) -> RunRecord:
+        """Simulate ``frame_count`` frames; call ``on_frame(frame, metrics)`` after each.
+        The first substep, which compiles the kernels, is timed apart as ``compile``."""
+        record = RunRecord()
+        substeps = self.time_step.substeps_per_frame
+        for frame in range(frame_count):
+            first = 0
+            if frame == 0:
+                started = time.perf_counter()
+                self.advance_substeps(0, 0, 1)
+                ti.sync()
+                record.wall_seconds["compile"] = time.perf_counter() - started
+                first = 1
+            started = time.perf_counter()
+            self.advance_substeps(frame, first, substeps)
+            ti.sync()
+            record.wall_seconds["simulate"] += time.perf_counter() - started
+            metrics = self.measure(frame)
+            record.frames.append(metrics)
+            if on_frame is not None:
+                on_frame(frame, metrics)
+        return record
+
+    def stats(self, record: RunRecord) -> dict:
+        """The ``stats.json`` document (DESIGN.md, "Outputs")."""
+        scene = self.scene
+        return {
+            "scene": scene.name,
+            "integrator": scene.simulation.integrator,
+            "dt": self.time_step.dt,
+            "substeps_per_frame": self.time_step.substeps_per_frame,
+            "time_step": self.time_step.report(),
+            "precision": scene.simulation.precision,
+            "material": scene.material.name,
+            "frames": len(record.frames),
+            "particles": self.model.particle_count,
+            "springs": self.model.spring_count,
+            "springs_per_family": self.model.family_counts,
+            "capsules": self.body_rig.capsule_count if self.body_rig is not None else 0,
+            "effects": self.effect_names,
+            "finite": True,
+            "max_strain": record.max_strain,
+            "max_penetration": record.max_penetration,
+            "wall_seconds": {k: round(v, 4) for k, v in record.wall_seconds.items()},
+            "per_frame": [f.as_dict() for f in record.frames],
+        }

@@ -1,0 +1,129 @@
+"""Scene files: every shipped scene loads and runs; every kind of bad input is one clear line
+naming the file, key or flag, with exit code 2."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from taichi_cloth.errors import InputError
+from taichi_cloth.scene import load_scene, shipped_scene_names
+from taichi_cloth.simulation import Simulation
+from taichi_cloth.commands import make_body_rig
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+@pytest.mark.parametrize("name", shipped_scene_names())
+def test_every_shipped_scene_loads_and_runs_a_few_frames(name):
+    scene = load_scene(name, ("cloth.resolution=[8, 6]",))
+    simulation = Simulation(scene, make_body_rig(scene))
+    record = simulation.run(2)
+    stats = simulation.stats(record)
+    assert stats["finite"] and stats["frames"] == 2
+    json.dumps(stats, allow_nan=False)
+    assert set(stats["effects"]) <= set(scene.effects)
+
+
+def test_overrides_parse_as_toml_with_bare_words_as_strings():
+    scene = load_scene("sheet", ("simulation.integrator=rk4", "cloth.resolution=[12, 9]",
+                                 "cloth.material=silk", "effects.drag=false", "simulation.dt=0.001"))
+    assert scene.simulation.integrator == "rk4"
+    assert scene.cloth.resolution == (12, 9)
+    assert scene.material.name == "silk"
+    assert "drag" not in scene.effects
+    assert scene.simulation.dt == 0.001
+    assert "wind" not in load_scene("sheet", ("effects.wind=false",)).effects  # a no-op
+    dense = load_scene("sheet", ("cloth.material.density=0.5",))
+    assert dense.material.density == 0.5 and dense.material.name == "cotton"
+
+
+BAD_INPUT = [
+    # (overrides, words the one-line message must contain)
+    (("cloth.resolutoin=[3, 3]",), ["--set cloth.resolutoin", "did you mean 'resolution'"]),
+    (("simulation.integrator=verlet",), ["simulation.integrator", "'euler'", "'rk4'"]),
+    (("cloth.material=linen",), ["cloth.material", "'cotton'", "'silk'"]),
+    (("effects.magnetism=true",), ["effects.magnetism", "valid: gravity"]),
+    (("simulation.dt=0",), ["simulation.dt", "> 0"]),
+    (("simulation.dt=-0.01",), ["simulation.dt", "> 0"]),
+    (("simulation.dt=fast",), ["simulation.dt", "auto"]),
+    (("cloth.resolution=[1, 8]",), ["cloth.resolution[0]", ">= 2"]),
+    (("cloth.resolution=[8]",), ["cloth.resolution", "list of 2"]),
+    (("cloth.material.density=0",), ["cloth.material.density", "> 0"]),
+    (("cloth.material.density=nan",), ["cloth.material.density", "finite"]),
+    (("scene.fps='thirty'",), ["scene.fps", "integer"]),
+    (("scene.duration=inf",), ["scene.duration", "finite"]),
+    (("cloth.springs=['stretch', 'twist']",), ["cloth.springs[1]", "'bend'"]),
+    (("output.meshes=['stl']",), ["output.meshes[0]", "'obj'"]),
+    (("cloth.resolution",), ["--set cloth.resolution", "KEY=VALUE"]),
+    (("cloth.resolution=[1,",), ["--set cloth.resolution", "not a valid TOML"]),
+    (("colth.shape=sheet",), ["colth", "did you mean 'cloth'"]),
+]
+
+
+@pytest.mark.parametrize("overrides, words", BAD_INPUT)
+def test_bad_input_is_one_line_naming_the_key(overrides, words):
+    with pytest.raises(InputError) as caught:
+        load_scene("sheet", overrides)
+    message = str(caught.value)
+    assert "\n" not in message
+    for word in words:
+        assert word in message
+
+
+def test_bad_file_names_the_file(tmp_path):
+    broken = tmp_path / "broken.toml"
+    broken.write_text("[cloth\nshape = 'sheet'\n")
+    with pytest.raises(InputError, match="broken.toml: not valid TOML"):
+        load_scene(str(broken))
+    typo = tmp_path / "typo.toml"
+    typo.write_text("[cloth]\nshape = 'sheet'\nmaterail = 'silk'\n")
+    with pytest.raises(InputError, match=r"typo.toml: cloth.materail: .*did you mean 'material'"):
+        load_scene(str(typo))
+    with pytest.raises(InputError, match="missing.toml: scene file not found"):
+        load_scene(str(tmp_path / "missing.toml"))
+    with pytest.raises(InputError, match="no such scene"):
+        load_scene("no-such-scene")
+
+
+def run_cli(*args, cwd=REPO):
+    return subprocess.run([sys.executable, "-m", "taichi_cloth", *args], cwd=cwd,
+                          capture_output=True, text=True, timeout=120)
+
+
+@pytest.mark.parametrize("args, flag", [
+    (["simulate", "sheet", "--set", "cloth.shape=cone"], "cloth.shape"),
+    (["simulate", "sheet", "--frames", "0"], "--frames"),
+    (["simulate", "sheet", "--arch", "tpu"], "--arch"),
+    (["simulate", "nowhere.toml"], "nowhere.toml"),
+])
+def test_cli_bad_input_exits_2_with_one_line_and_no_traceback(tmp_path, args, flag):
+    result = run_cli(*args, "--out", str(tmp_path / "out"))
+    assert result.returncode == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and flag in lines[0]
+    assert "Traceback" not in result.stderr
+    assert not (tmp_path / "out").exists()
+
+
+def test_cli_simulate_writes_stats(tmp_path):
+    result = run_cli("simulate", "sheet", "--frames", "2", "--set", "cloth.resolution=[6, 6]",
+                     "--out", str(tmp_path), "--quiet")
+    assert result.returncode == 0, result.stderr
+    stats = json.loads((tmp_path / "stats.json").read_text())
+    assert stats["frames"] == 2 and stats["particles"] == 36 and stats["finite"]
+    assert stats["effects"] == ["gravity", "damping", "drag"]
+    assert [f["frame"] for f in stats["per_frame"]] == [0, 1]
+
+
+def test_cli_unstable_run_exits_3_without_writing_nan(tmp_path):
+    result = run_cli("simulate", "sheet", "--frames", "5", "--set", "simulation.integrator=euler",
+                     "--set", "simulation.dt=0.01", "--set", "effects.damping=false",
+                     "--out", str(tmp_path))
+    assert result.returncode == 3
+    message = result.stderr.strip()
+    assert "frame" in message and "euler" in message and "dt = 0.00833333 s" in message
+    assert "Traceback" not in result.stderr
+    assert not (tmp_path / "stats.json").exists()
