@@ -14,11 +14,12 @@ This is −∂E/∂x_i of E = ½ k (l − L)² plus a dashpot along the spring; 
 import numpy as np
 import taichi as ti
 
+from .contact import GroundContact
 from .effects import Drag, Gravity, Wind
 from .model import Model
 from .scene import EFFECT_TYPES
 
-EFFECT_CLASSES = {"gravity": Gravity, "drag": Drag, "wind": Wind}
+EFFECT_CLASSES = {"gravity": Gravity, "drag": Drag, "wind": Wind, "ground": GroundContact}
 
 
 def make_effects(declared: dict, extra: dict | None = None) -> list:

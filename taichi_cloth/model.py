@@ -8,15 +8,16 @@ Forces are gathered, never scattered: every particle owns the list of its spring
 (``particle_spring_start``/``particle_spring``/``particle_neighbor``) and of its triangles, so a
 force is a sum in a fixed order and a run is bit-reproducible on the CPU (no atomic float adds).
 
-A pinned particle has inverse mass 0 and follows the pin frame: its position is
-R · pin_local + origin, its velocity v_origin + ω × (x − origin). The frame is identity for a
-static pin and moves with the pelvis for a worn skirt.
+A pinned particle has inverse mass 0 and follows its prescribed motion: slot
+``pin_slot[i]`` of ``pin_track`` (a ``KinematicTrack``), held at its rest position for a static
+pin and carried by the pelvis for a worn skirt.
 """
 
 import numpy as np
 import taichi as ti
 
 from .garment import Garment
+from .kinematics import KinematicTrack
 
 FAMILY_ORDER = ("stretch", "shear", "bend")
 
@@ -69,11 +70,14 @@ class Model:
     particle_mass [kg] and particle_inv_mass [1/kg] (0 for pinned), shape [particle_count];
     spring_ends (i, j), spring_rest_length [m], spring_stiffness [N/m], spring_damping [N·s/m],
     shape [spring_count], ordered stretch, shear, bend (the first ``stretch_count`` are stretch);
-    triangles, shape [triangle_count]; pin_local [m], the pinned positions in the pin frame.
+    triangles, shape [triangle_count]; pin_slot, shape [particle_count]: the pinned particle's
+    point in ``pin_track`` (−1 for a free particle).
     """
 
-    def __init__(self, garment: Garment, precision: str = "f32", damping_scale: float | None = None):
-        """damping_scale: None compiles no dashpots; else c = scale · β · k per spring."""
+    def __init__(self, garment: Garment, precision: str = "f32", damping_scale: float | None = None,
+                 pin_samples: int = 2):
+        """damping_scale: None compiles no dashpots; else c = scale · β · k per spring.
+        pin_samples: sample times per frame of the pins' prescribed motion (2 when static)."""
         self.real = real_type(precision)
         self.numpy_real = np.float64 if precision == "f64" else np.float32
         self.garment = garment
@@ -105,11 +109,9 @@ class Model:
         triangle_start, triangle_item = triangle_gather_lists(garment.triangles, n)
         self.particle_triangle_start = ti.field(ti.i32, n + 1)
         self.particle_triangle = ti.field(ti.i32, len(triangle_item))
-        self.pin_local = ti.Vector.field(3, real, n)
-        self.pin_rotation = ti.Matrix.field(3, 3, real, ())
-        self.pin_origin = ti.Vector.field(3, real, ())
-        self.pin_velocity = ti.Vector.field(3, real, ())
-        self.pin_angular_velocity = ti.Vector.field(3, real, ())
+        self.pinned_particles = np.flatnonzero(garment.pinned)
+        self.pin_slot = ti.field(ti.i32, n)
+        self.pin_track = KinematicTrack(max(1, len(self.pinned_particles)), pin_samples, real)
 
         self.particle_mass.from_numpy(self._real(garment.mass))
         self.particle_inv_mass.from_numpy(self._real(inv_mass))
@@ -124,9 +126,11 @@ class Model:
         self.triangles.from_numpy(garment.triangles)
         self.particle_triangle_start.from_numpy(triangle_start)
         self.particle_triangle.from_numpy(triangle_item)
-        self.pin_origin_rest = np.zeros(3)
-        self.pin_local.from_numpy(self._real(garment.positions))
-        self.set_pin_frame(np.eye(3), np.zeros(3), np.zeros(3), np.zeros(3))
+        slot = np.full(n, -1, dtype=np.int32)
+        slot[self.pinned_particles] = np.arange(len(self.pinned_particles), dtype=np.int32)
+        self.pin_slot.from_numpy(slot)
+        if len(self.pinned_particles):
+            self.pin_track.hold(garment.positions[self.pinned_particles])
 
         # NumPy copies for per-frame metrics and exports (never touched in the substep loop).
         self.host_spring_ends = ends
@@ -138,21 +142,6 @@ class Model:
         """``array`` in the model's float precision, for ``from_numpy``."""
         return np.ascontiguousarray(array, dtype=self.numpy_real)
 
-    def set_pin_local_origin(self, origin: np.ndarray) -> None:
-        """Express the pinned rest positions relative to ``origin`` (the pin frame's rest
-        origin, e.g. the pelvis) so that the frame can carry them."""
-        self.pin_origin_rest = np.asarray(origin, dtype=float)
-        self.pin_local.from_numpy(self._real(self.garment.positions - self.pin_origin_rest))
-        self.set_pin_frame(np.eye(3), self.pin_origin_rest, np.zeros(3), np.zeros(3))
-
-    def set_pin_frame(self, rotation, origin, velocity, angular_velocity) -> None:
-        """Pose of the pin frame at the end of the coming step: R (3,3), origin [m],
-        velocity [m/s], angular velocity [rad/s] (world frame)."""
-        self.pin_rotation[None] = self._real(rotation)
-        self.pin_origin[None] = self._real(origin)
-        self.pin_velocity[None] = self._real(velocity)
-        self.pin_angular_velocity[None] = self._real(angular_velocity)
-
     def state(self) -> State:
         """A fresh state at the rest positions, at rest."""
         state = State(self.particle_count, self.real)
@@ -161,9 +150,6 @@ class Model:
         return state
 
     @ti.func
-    def pin_target(self, i_p):
-        """Position [m] and velocity [m/s] of pinned particle i_p under the current pin frame."""
-        origin = self.pin_origin[None]
-        position = self.pin_rotation[None] @ self.pin_local[i_p] + origin
-        velocity = self.pin_velocity[None] + self.pin_angular_velocity[None].cross(position - origin)
-        return position, velocity
+    def pin_target(self, i_p, t):
+        """Position [m] and velocity [m/s] of pinned particle i_p at time t [s]."""
+        return self.pin_track.at(self.pin_slot[i_p], t)

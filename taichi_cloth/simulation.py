@@ -69,11 +69,13 @@ class Simulation:
         self.garment = build_garment(scene.cloth, material, waist_height, scene.path)
         damping = scene.effects.get("damping")
         self.model = Model(self.garment, scene.simulation.precision,
-                           damping.scale if damping is not None else None)
-        extra = body_rig.effects(self.model, scene.effects) if body_rig is not None else {}
-        if body_rig is not None:
-            body_rig.attach(self.model)
+                           damping.scale if damping is not None else None,
+                           body_rig.sample_count if body_rig is not None else 2)
+        extra = body_rig.attach(self.model, scene.effects) if body_rig is not None else {}
         self.forces = Forces(self.model, make_effects(scene.effects, extra))
+        collision = scene.effects.get("collision")
+        self.projection = body_rig.contact if collision is not None and \
+            collision.mode == "penalty+projection" else None
         self.integrator = make_integrator(scene.simulation.integrator, self.forces)
         self.time_step = self._choose_time_step()
         self.state_in = self.model.state()
@@ -130,13 +132,14 @@ class Simulation:
             center_of_mass=[float(c) for c in np.sum(mass[:, None] * x, 0) / np.sum(mass)])
 
     def advance_substeps(self, frame: int, first: int, end: int) -> None:
-        """Substeps first..end−1 of ``frame`` (a frame runs from t = frame/fps to (frame+1)/fps)."""
+        """Substeps first..end−1 of ``frame`` (a frame runs from t = frame/fps to (frame+1)/fps).
+        The body must have been prepared for the frame (``BodyRig.prepare_frame``)."""
         dt, substeps = self.time_step.dt, self.time_step.substeps_per_frame
         for substep in range(first, end):
             t = (frame * substeps + substep) * dt
-            if self.body_rig is not None:
-                self.body_rig.move_to(t, t + dt)
             self.integrator.step(self.state_in, self.state_out, t, dt)
+            if self.projection is not None:
+                self.projection.project(self.state_out.x, self.state_out.v, self.model, t + dt)
             self.state_in, self.state_out = self.state_out, self.state_in
 
     def run(self, frame_count: int, on_frame=None) -> RunRecord:
@@ -145,6 +148,8 @@ class Simulation:
         record = RunRecord()
         substeps = self.time_step.substeps_per_frame
         for frame in range(frame_count):
+            if self.body_rig is not None:
+                self.body_rig.prepare_frame(frame)
             first = 0
             if frame == 0:
                 started = time.perf_counter()

@@ -41,7 +41,7 @@ class EulerStep:
         for i_p in x:
             inv_mass = model.particle_inv_mass[i_p]
             if inv_mass == 0:
-                x_out[i_p], v_out[i_p] = model.pin_target(i_p)
+                x_out[i_p], v_out[i_p] = model.pin_target(i_p, t + dt)
             else:
                 acceleration = inv_mass * self.forces.particle_force(x, v, i_p, time)
                 v_new = v[i_p] + h * acceleration

@@ -39,21 +39,23 @@ class RungeKutta4:
         """Advance from state_in at time t [s] by dt [s] into state_out."""
         first, second = self.stage
         # (stage state evaluated, its time, weight of its slope, fraction of h to the next state)
-        self._stage(state_in, state_in, first, t, dt, 1.0 / 6.0, 0.5, 0)
-        self._stage(state_in, first, second, t + 0.5 * dt, dt, 1.0 / 3.0, 0.5, 1)
-        self._stage(state_in, second, first, t + 0.5 * dt, dt, 1.0 / 3.0, 1.0, 1)
-        self._stage(state_in, first, state_out, t + dt, dt, 1.0 / 6.0, 0.0, 2)
+        self._stage(state_in, state_in, first, t, 0.0, dt, 1.0 / 6.0, 0.5, 0)
+        self._stage(state_in, first, second, t, 0.5, dt, 1.0 / 3.0, 0.5, 1)
+        self._stage(state_in, second, first, t, 0.5, dt, 1.0 / 3.0, 1.0, 1)
+        self._stage(state_in, first, state_out, t, 1.0, dt, 1.0 / 6.0, 0.0, 2)
 
     @ti.kernel
     def _stage(self, start: ti.template(), evaluated: ti.template(), out: ti.template(),
-               t: ti.f64, dt: ti.f64, weight: ti.f64, next_fraction: ti.f64,
-               position: ti.template()):
-        """position: 0 first stage (start the sums), 1 middle, 2 last (write the new state)."""
+               t: ti.f64, stage_fraction: ti.f64, dt: ti.f64, weight: ti.f64,
+               next_fraction: ti.f64, position: ti.template()):
+        """Evaluate at t + stage_fraction·dt. position: 0 first stage (start the sums), 1 middle,
+        2 last (write the new state)."""
         model = self.model
         h = ti.cast(dt, model.real)
         w = ti.cast(weight, model.real)
         c = ti.cast(next_fraction, model.real)
-        time = ti.cast(t, model.real)
+        time = ti.cast(t + stage_fraction * dt, model.real)
+        step_end = t + dt
         for i_p in start.x:
             slope_x = evaluated.v[i_p]
             slope_v = model.particle_inv_mass[i_p] * self.forces.particle_force(
@@ -66,7 +68,7 @@ class RungeKutta4:
                 self.sum_v[i_p] += w * slope_v
             if ti.static(position == 2):
                 if model.particle_inv_mass[i_p] == 0:
-                    out.x[i_p], out.v[i_p] = model.pin_target(i_p)
+                    out.x[i_p], out.v[i_p] = model.pin_target(i_p, step_end)
                 else:
                     out.x[i_p] = start.x[i_p] + h * self.sum_x[i_p]
                     out.v[i_p] = start.v[i_p] + h * self.sum_v[i_p]

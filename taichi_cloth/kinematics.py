@@ -1,0 +1,60 @@
+"""Prescribed motion of points (pinned particles, capsule endpoints) inside the kernels.
+
+The body is posed on the host a few times per frame, not every substep: ``KinematicTrack``
+holds positions and velocities of K points at S + 1 evenly spaced sample times covering one frame,
+and ``at(i_k, t)`` interpolates them with cubic Hermite splines, so any substep or RK4 stage time
+gets a C¹ position and its velocity without host work in the substep loop:
+
+    p(s) = h00(s)·p0 + h10(s)·Δ·v0 + h01(s)·p1 + h11(s)·Δ·v1,   s = (t − t_k)/Δ ∈ [0, 1]
+    h00 = 2s³ − 3s² + 1, h10 = s³ − 2s² + s, h01 = −2s³ + 3s², h11 = s³ − s²
+    v(s) = (h00'·p0 + h10'·Δ·v0 + h01'·p1 + h11'·Δ·v1) / Δ
+
+Times outside the sampled span clamp to its ends.
+"""
+
+import numpy as np
+import taichi as ti
+
+
+@ti.data_oriented
+class KinematicTrack:
+    """Positions [m] and velocities [m/s] of ``point_count`` points at ``sample_count`` times."""
+
+    def __init__(self, point_count: int, sample_count: int, real):
+        self.point_count = point_count
+        self.sample_count = sample_count
+        self.real = real
+        self.numpy_real = np.float64 if real == ti.f64 else np.float32
+        self.position = ti.Vector.field(3, real, (sample_count, point_count))
+        self.velocity = ti.Vector.field(3, real, (sample_count, point_count))
+        self.timing = ti.field(ti.f64, 2)  # first sample time [s], interval between samples [s]
+
+    def upload(self, first_time: float, interval: float, positions: np.ndarray,
+               velocities: np.ndarray) -> None:
+        """positions, velocities: (sample_count, point_count, 3) at first_time + k·interval."""
+        self.position.from_numpy(np.ascontiguousarray(positions, dtype=self.numpy_real))
+        self.velocity.from_numpy(np.ascontiguousarray(velocities, dtype=self.numpy_real))
+        self.timing.from_numpy(np.array([first_time, interval]))
+
+    def hold(self, positions: np.ndarray) -> None:
+        """Points that stay where they are: every sample at ``positions`` (K,3), at rest."""
+        repeated = np.repeat(positions[None], self.sample_count, axis=0)
+        self.upload(0.0, 1.0, repeated, np.zeros_like(repeated))
+
+    @ti.func
+    def at(self, i_k, t):
+        """Position [m] and velocity [m/s] of point i_k at time t [s]."""
+        span = ti.cast(self.sample_count - 1, ti.f64)
+        s_total = ti.min(ti.max((ti.cast(t, ti.f64) - self.timing[0]) / self.timing[1], 0.0),
+                         span)
+        k = ti.min(ti.cast(ti.floor(s_total), ti.i32), self.sample_count - 2)
+        s = ti.cast(s_total - k, self.real)
+        delta = ti.cast(self.timing[1], self.real)
+        p0, p1 = self.position[k, i_k], self.position[k + 1, i_k]
+        v0, v1 = delta * self.velocity[k, i_k], delta * self.velocity[k + 1, i_k]
+        s2, s3 = s * s, s * s * s
+        position = (2 * s3 - 3 * s2 + 1) * p0 + (s3 - 2 * s2 + s) * v0 \
+            + (3 * s2 - 2 * s3) * p1 + (s3 - s2) * v1
+        slope = (6 * s2 - 6 * s) * p0 + (3 * s2 - 4 * s + 1) * v0 \
+            + (6 * s - 6 * s2) * p1 + (3 * s2 - 2 * s) * v1
+        return position, slope / delta

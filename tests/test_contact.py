@@ -1,0 +1,151 @@
+"""Point–capsule contact (seed §2.6.3) against a NumPy reference, and the penalty/friction law."""
+
+import numpy as np
+import pytest
+import taichi as ti
+
+from taichi_cloth.contact import CapsuleContact, closest_on_segment, closest_points_numpy
+from taichi_cloth.forces import Forces
+from taichi_cloth.kinematics import KinematicTrack
+from taichi_cloth.model import Model
+from taichi_cloth.scene import CollisionEffect
+
+from systems import one_spring_garment
+
+
+def brute_force_distance(x, a, b, samples=20001):
+    """Distance from x to segment a–b by dense sampling: no clamping formula involved."""
+    s = np.linspace(0.0, 1.0, samples)
+    points = a[None] + s[:, None] * (b - a)[None]
+    return np.linalg.norm(points - x[None], axis=1).min()
+
+
+@ti.kernel
+def segment_distance_kernel(x: ti.types.ndarray(), a: ti.types.ndarray(), b: ti.types.ndarray(),
+                            out: ti.types.ndarray()):
+    for i in range(x.shape[0]):
+        p = ti.Vector([x[i, 0], x[i, 1], x[i, 2]], dt=ti.f64)
+        pa = ti.Vector([a[0], a[1], a[2]], dt=ti.f64)
+        pb = ti.Vector([b[0], b[1], b[2]], dt=ti.f64)
+        s = closest_on_segment(p, pa, pb)
+        out[i] = (p - (pa + s * (pb - pa))).norm()
+
+
+@pytest.mark.parametrize("a, b", [
+    ((0.0, 0.0, 0.0), (0.0, 0.4, 0.0)),      # vertical bone
+    ((0.1, 0.9, 0.0), (-0.2, 0.5, 0.3)),    # oblique
+    ((0.2, 0.3, 0.1), (0.2, 0.3, 0.1)),     # degenerate: a sphere
+])
+def test_point_to_segment_distance_matches_dense_sampling(a, b):
+    a, b = np.array(a), np.array(b)
+    rng = np.random.default_rng(3)
+    centre = 0.5 * (a + b)
+    x = np.concatenate([
+        centre + 0.3 * rng.standard_normal((60, 3)),            # anywhere around
+        a + 0.05 * rng.standard_normal((20, 3)),                # near cap a
+        b + 0.05 * rng.standard_normal((20, 3)),                # near cap b
+        a + np.linspace(-0.5, 1.5, 21)[:, None] * (b - a),      # on the axis, beyond both ends
+    ])
+    kernel_distance = np.zeros(len(x))
+    segment_distance_kernel(x, a, b, kernel_distance)
+    _, _, numpy_distance = closest_points_numpy(x, a[None], b[None])
+    reference = np.array([brute_force_distance(p, a, b) for p in x])
+    tolerance = 1e-4 * max(np.linalg.norm(b - a), 1e-3)
+    np.testing.assert_allclose(kernel_distance, reference, atol=tolerance)
+    np.testing.assert_allclose(numpy_distance[:, 0], reference, atol=tolerance)
+
+
+class OneCapsule:
+    """Particle 1 of a zero-stiffness spring system against one capsule moving at a set velocity."""
+
+    def __init__(self, friction=0.4):
+        garment = one_spring_garment(omega=0.0)
+        self.model = Model(garment, "f64", None)
+        self.track = KinematicTrack(2, 2, ti.f64)
+        self.radius = 0.1
+        self.config = CollisionEffect(stiffness=1e4, damping=0.3, friction=friction,
+                                      thickness=0.0)
+        self.contact = CapsuleContact(self.config, np.array([self.radius]), self.track, ti.f64)
+        self.forces = Forces(self.model, [self.contact])
+        self.state = self.model.state()
+        self.out = ti.Vector.field(3, ti.f64, self.model.particle_count)
+
+    def force_at(self, position, velocity, surface_velocity=(0.0, 0.0, 0.0)):
+        """Capsule along z through (0.5, 0, 0); the particle at ``position``."""
+        a, b = np.array([0.5, 0.0, -0.3]), np.array([0.5, 0.0, 0.3])
+        surface = np.array(surface_velocity)
+        self.track.upload(0.0, 1.0, np.array([[a, b], [a + surface, b + surface]]),
+                          np.array([[surface, surface], [surface, surface]]))
+        x = self.model.garment.positions.copy()
+        v = np.zeros_like(x)
+        x[1], v[1] = position, velocity
+        self.state.x.from_numpy(x)
+        self.state.v.from_numpy(v)
+        self.forces.evaluate(self.state.x, self.state.v, 0.0, self.out)
+        return self.out.to_numpy()[1]
+
+
+@pytest.fixture(scope="module")
+def capsule():
+    return OneCapsule()
+
+
+def test_penalty_force_points_out_and_grows_with_depth(capsule):
+    direction = np.array([1.0, 1.0, 0.0]) / np.sqrt(2)
+    previous = 0.0
+    for depth in (0.001, 0.01, 0.03, 0.06):
+        position = np.array([0.5, 0.0, 0.1]) + (capsule.radius - depth) * direction
+        force = capsule.force_at(position, np.zeros(3))
+        magnitude = np.linalg.norm(force)
+        assert magnitude > previous
+        np.testing.assert_allclose(force / magnitude, direction, atol=1e-12)  # straight out
+        assert magnitude == pytest.approx(1.0 * 1e4 * depth, rel=1e-12)  # m·k̂·d, at rest
+        previous = magnitude
+    outside = np.array([0.5, 0.0, 0.0]) + 1.01 * capsule.radius * direction
+    np.testing.assert_array_equal(capsule.force_at(outside, np.zeros(3)), 0.0)
+    on_cap = np.array([0.5, 0.0, 0.3 + capsule.radius - 0.01])  # beyond b: the hemisphere
+    force = capsule.force_at(on_cap, np.zeros(3))
+    np.testing.assert_allclose(force, [0.0, 0.0, 1e4 * 0.01], atol=1e-9)
+
+
+@pytest.mark.parametrize("surface_velocity", [(0.0, 0.0, 0.0), (0.0, 0.0, 0.8), (0.0, 0.0, -2.0)])
+def test_friction_is_bounded_and_opposes_sliding_on_the_moving_surface(capsule, surface_velocity):
+    position = np.array([0.5 + capsule.radius - 0.02, 0.0, 0.0])  # 2 cm deep on the +x side
+    surface = np.array(surface_velocity)
+    for slip in ([0.0, 0.0, 0.5], [0.0, -0.3, 0.1], [0.0, 1e-4, 0.0]):
+        velocity = surface + np.array(slip)  # sliding tangentially relative to the surface
+        force = capsule.force_at(position, velocity, surface_velocity)
+        normal_force, tangential = force[0], force[1:]
+        assert normal_force == pytest.approx(1e4 * 0.02)
+        slip_direction = np.array(slip[1:]) / np.linalg.norm(slip[1:])
+        assert np.linalg.norm(tangential) <= 0.4 * normal_force * (1 + 1e-12)
+        assert np.dot(tangential, slip_direction) < 0  # opposes the slip
+        np.testing.assert_allclose(np.cross(np.r_[0, tangential], np.r_[0, slip_direction]), 0,
+                                   atol=1e-12)
+
+
+def test_kinematic_track_interpolates_cubic_motion_exactly():
+    """Hermite interpolation reproduces p(t) = c0 + c1 t + c2 t² + c3 t³ and its derivative."""
+    coefficients = np.array([[0.1, -0.2, 0.3], [1.0, 0.5, -0.4], [-2.0, 0.3, 0.7], [0.6, -1.1, 0.2]])
+    times = np.linspace(0.2, 0.6, 5)
+    position = sum(c * times[:, None] ** k for k, c in enumerate(coefficients))
+    velocity = sum(k * c * times[:, None] ** (k - 1) for k, c in enumerate(coefficients) if k)
+    track = KinematicTrack(1, 5, ti.f64)
+    track.upload(0.2, 0.1, position[:, None, :], velocity[:, None, :])
+    probe = np.linspace(0.2, 0.6, 17)
+    got_position, got_velocity = np.zeros((17, 3)), np.zeros((17, 3))
+    sample_track(track, probe, got_position, got_velocity)
+    expect_position = sum(c * probe[:, None] ** k for k, c in enumerate(coefficients))
+    expect_velocity = sum(k * c * probe[:, None] ** (k - 1) for k, c in enumerate(coefficients) if k)
+    np.testing.assert_allclose(got_position, expect_position, atol=1e-12)
+    np.testing.assert_allclose(got_velocity, expect_velocity, atol=1e-10)
+
+
+@ti.kernel
+def sample_track(track: ti.template(), times: ti.types.ndarray(), position: ti.types.ndarray(),
+                 velocity: ti.types.ndarray()):
+    for i in range(times.shape[0]):
+        p, v = track.at(0, times[i])
+        for k in ti.static(range(3)):
+            position[i, k] = p[k]
+            velocity[i, k] = v[k]
