@@ -82,12 +82,13 @@ class CapsuleContact:
     name = "collision"
 
     def __init__(self, config: CollisionEffect, capsule_radius: np.ndarray, track: KinematicTrack,
-                 real):
+                 model):
         self.stiffness, self.damping_ratio = config.stiffness, config.damping
         self.friction, self.margin = config.friction, config.thickness
         self.capsule_count = len(capsule_radius)
         self.track = track
-        self.capsule_radius = ti.field(real, self.capsule_count)
+        self.model = model
+        self.capsule_radius = ti.field(model.real, self.capsule_count)
         self.capsule_radius.from_numpy(np.asarray(capsule_radius, dtype=track.numpy_real))
 
     @ti.func
@@ -118,10 +119,13 @@ class CapsuleContact:
                                        real(self.damping_ratio), real(self.friction))
         return f
 
-    @ti.kernel
-    def project(self, x: ti.template(), v: ti.template(), model: ti.template(), t: ti.f64):
-        """The fail-safe after a step: a free particle still inside a capsule moves to its
-        surface (plus margin) and loses its inward velocity relative to the surface."""
+    @ti.func
+    def apply(self, state, t):
+        """The projection pass after a step (``penalty+projection``): a free particle still
+        inside a capsule moves to its surface (plus margin) and loses its inward velocity
+        relative to the surface."""
+        model = self.model
+        x, v = ti.static(state.x, state.v)
         margin = model.real(self.margin)
         for i_p in x:
             if model.particle_inv_mass[i_p] > 0:

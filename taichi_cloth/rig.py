@@ -75,7 +75,7 @@ class BodyRig:
         effects = {}
         if "collision" in declared_effects:
             self.contact = CapsuleContact(declared_effects["collision"], self.body.capsule_radius,
-                                          self.capsule_track, model.real)
+                                          self.capsule_track, model)
             effects["collision"] = self.contact
         return effects
 

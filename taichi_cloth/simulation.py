@@ -74,12 +74,13 @@ class Simulation:
         extra = body_rig.attach(self.model, scene.effects) if body_rig is not None else {}
         self.forces = Forces(self.model, make_effects(scene.effects, extra))
         collision = scene.effects.get("collision")
-        self.projection = body_rig.contact if collision is not None and \
+        projection = body_rig.contact if collision is not None and \
             collision.mode == "penalty+projection" else None
-        self.integrator = make_integrator(scene.simulation.integrator, self.forces)
+        self.integrator = make_integrator(scene.simulation.integrator, self.forces, projection)
         self.time_step = self._choose_time_step()
         self.state_in = self.model.state()
         self.state_out = self.model.state()
+        self._compiled_batches = set()
         self.gravity = scene.effects["gravity"].g if "gravity" in scene.effects else 0.0
 
     def _choose_time_step(self) -> TimeStep:
@@ -131,36 +132,37 @@ class Simulation:
             potential_energy=potential, max_strain=max_strain, max_penetration=penetration,
             center_of_mass=[float(c) for c in np.sum(mass[:, None] * x, 0) / np.sum(mass)])
 
-    def advance_substeps(self, frame: int, first: int, end: int) -> None:
-        """Substeps first..end−1 of ``frame`` (a frame runs from t = frame/fps to (frame+1)/fps).
-        The body must have been prepared for the frame (``BodyRig.prepare_frame``)."""
+    def advance_frame(self, frame: int, record: "RunRecord") -> None:
+        """The substeps of ``frame`` (t from frame/fps to (frame+1)/fps), the integrator's
+        ``substep_batch`` per kernel launch and the rest one by one. The first launch of each kernel variant compiles
+        it: its wall time goes to ``compile``, the rest to ``simulate``."""
+        if self.body_rig is not None:
+            self.body_rig.prepare_frame(frame)
         dt, substeps = self.time_step.dt, self.time_step.substeps_per_frame
-        for substep in range(first, end):
-            t = (frame * substeps + substep) * dt
-            self.integrator.step(self.state_in, self.state_out, t, dt)
-            if self.projection is not None:
-                self.projection.project(self.state_out.x, self.state_out.v, self.model, t + dt)
-            self.state_in, self.state_out = self.state_out, self.state_in
+        batch = self.integrator.substep_batch
+        done = 0
+        while done < substeps:
+            count = batch if substeps - done >= batch else 1
+            t = (frame * substeps + done) * dt
+            started = time.perf_counter()
+            self.state_in, self.state_out = self.integrator.advance(
+                self.state_in, self.state_out, t, dt, count)
+            if count not in self._compiled_batches:
+                ti.sync()
+                self._compiled_batches.add(count)
+                record.wall_seconds["compile"] += time.perf_counter() - started
+            else:
+                record.wall_seconds["simulate"] += time.perf_counter() - started
+            done += count
+        started = time.perf_counter()
+        ti.sync()
+        record.wall_seconds["simulate"] += time.perf_counter() - started
 
     def run(self, frame_count: int, on_frame=None) -> RunRecord:
-        """Simulate ``frame_count`` frames; call ``on_frame(frame, metrics)`` after each.
-        The first substep, which compiles the kernels, is timed apart as ``compile``."""
+        """Simulate ``frame_count`` frames; call ``on_frame(frame, metrics)`` after each."""
         record = RunRecord()
-        substeps = self.time_step.substeps_per_frame
         for frame in range(frame_count):
-            if self.body_rig is not None:
-                self.body_rig.prepare_frame(frame)
-            first = 0
-            if frame == 0:
-                started = time.perf_counter()
-                self.advance_substeps(0, 0, 1)
-                ti.sync()
-                record.wall_seconds["compile"] = time.perf_counter() - started
-                first = 1
-            started = time.perf_counter()
-            self.advance_substeps(frame, first, substeps)
-            ti.sync()
-            record.wall_seconds["simulate"] += time.perf_counter() - started
+            self.advance_frame(frame, record)
             metrics = self.measure(frame)
             record.frames.append(metrics)
             if on_frame is not None:

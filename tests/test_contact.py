@@ -65,7 +65,7 @@ class OneCapsule:
         self.radius = 0.1
         self.config = CollisionEffect(stiffness=1e4, damping=0.3, friction=friction,
                                       thickness=0.0)
-        self.contact = CapsuleContact(self.config, np.array([self.radius]), self.track, ti.f64)
+        self.contact = CapsuleContact(self.config, np.array([self.radius]), self.track, self.model)
         self.forces = Forces(self.model, [self.contact])
         self.state = self.model.state()
         self.out = ti.Vector.field(3, ti.f64, self.model.particle_count)

@@ -7,6 +7,6 @@ from .rk4 import RungeKutta4
 INTEGRATORS = {cls.name: cls for cls in (ExplicitEuler, SymplecticEuler, RungeKutta4)}
 
 
-def make_integrator(name: str, forces):
-    """The integrator called ``name`` for these forces."""
-    return INTEGRATORS[name](forces)
+def make_integrator(name: str, forces, post_step=None):
+    """The integrator called ``name`` for these forces (``post_step``: see ``base.Integrator``)."""
+    return INTEGRATORS[name](forces, post_step)

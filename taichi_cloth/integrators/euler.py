@@ -9,33 +9,25 @@ velocity moves the positions:
 (the seed's §2.5.2 listing prints v(t) in the position update, but its text says the position
 uses the *future* velocity: that is the symplectic method implemented here; cf. PositionBasedDynamics
 ``TimeIntegration.h``). A step reads only ``state_in`` and writes only ``state_out``, so the force
-gather and the update fuse into one kernel. Pinned particles (inverse mass 0) take their pin
-target at t + h.
+gather and the update fuse into one parallel loop. Pinned particles (inverse mass 0) take their
+pin target at t + h.
 """
 
 import taichi as ti
 
-from ..forces import Forces
+from .base import Integrator
 
 
 @ti.data_oriented
-class EulerStep:
+class EulerStep(Integrator):
     """One force evaluation, then one update; ``uses_new_velocity`` picks the variant."""
 
     uses_new_velocity = False
 
-    def __init__(self, forces: Forces):
-        self.forces = forces
-        self.model = forces.model
-
-    def step(self, state_in, state_out, t: float, dt: float) -> None:
-        """Advance from state_in at time t [s] by dt [s] into state_out."""
-        self._step(state_in.x, state_in.v, state_out.x, state_out.v, t, dt)
-
-    @ti.kernel
-    def _step(self, x: ti.template(), v: ti.template(), x_out: ti.template(),
-              v_out: ti.template(), t: ti.f64, dt: ti.f64):
+    @ti.func
+    def substep(self, state_in, state_out, t, dt):
         model = self.model
+        x, v, x_out, v_out = ti.static(state_in.x, state_in.v, state_out.x, state_out.v)
         h = ti.cast(dt, model.real)
         time = ti.cast(t, model.real)
         for i_p in x:

@@ -12,50 +12,50 @@ Every stage evaluates *all* forces, dampers included, at the stage's own positio
 The seed's listing evaluates the damping −c·v(t) with the step's starting velocity in every stage,
 which drops the method to first order once damping is on; ORACLES.md's order test catches that.
 
-Each stage is one fused kernel: it gathers forces at the previous stage state, adds the stage's
+Each stage is one parallel loop: it gathers forces at the previous stage state, adds the stage's
 weighted slope to running sums, and writes the next stage state (two stage buffers alternate, as
 threads still read the one being evaluated). Pinned particles take their pin target at t + h.
 """
 
 import taichi as ti
 
-from ..forces import Forces
 from ..model import State
+from .base import Integrator
 
 
 @ti.data_oriented
-class RungeKutta4:
+class RungeKutta4(Integrator):
     name = "rk4"
+    substep_batch = 2  # four parallel loops per substep already
 
-    def __init__(self, forces: Forces):
-        self.forces = forces
-        self.model = forces.model
+    def __init__(self, forces, post_step=None):
+        super().__init__(forces, post_step)
         n, real = self.model.particle_count, self.model.real
         self.stage = (State(n, real), State(n, real))
         self.sum_x = ti.Vector.field(3, real, n)
         self.sum_v = ti.Vector.field(3, real, n)
 
-    def step(self, state_in, state_out, t: float, dt: float) -> None:
-        """Advance from state_in at time t [s] by dt [s] into state_out."""
-        first, second = self.stage
-        # (stage state evaluated, its time, weight of its slope, fraction of h to the next state)
+    @ti.func
+    def substep(self, state_in, state_out, t, dt):
+        first, second = ti.static(self.stage)
+        # (state evaluated, fraction of h to its time, weight of its slope, fraction of h to the
+        #  next stage state, which stage)
         self._stage(state_in, state_in, first, t, 0.0, dt, 1.0 / 6.0, 0.5, 0)
         self._stage(state_in, first, second, t, 0.5, dt, 1.0 / 3.0, 0.5, 1)
         self._stage(state_in, second, first, t, 0.5, dt, 1.0 / 3.0, 1.0, 1)
         self._stage(state_in, first, state_out, t, 1.0, dt, 1.0 / 6.0, 0.0, 2)
 
-    @ti.kernel
-    def _stage(self, start: ti.template(), evaluated: ti.template(), out: ti.template(),
-               t: ti.f64, stage_fraction: ti.f64, dt: ti.f64, weight: ti.f64,
-               next_fraction: ti.f64, position: ti.template()):
+    @ti.func
+    def _stage(self, start, evaluated, out, t, stage_fraction: ti.template(), dt,
+               weight: ti.template(), next_fraction: ti.template(), position: ti.template()):
         """Evaluate at t + stage_fraction·dt. position: 0 first stage (start the sums), 1 middle,
-        2 last (write the new state)."""
+        2 last (write the new state). The fractions and weights are Python floats, baked exactly
+        in the model's precision."""
         model = self.model
         h = ti.cast(dt, model.real)
-        w = ti.cast(weight, model.real)
-        c = ti.cast(next_fraction, model.real)
-        time = ti.cast(t + stage_fraction * dt, model.real)
-        step_end = t + dt
+        w = model.real(weight)
+        c = model.real(next_fraction)
+        time = ti.cast(t + ti.f64(stage_fraction) * dt, model.real)
         for i_p in start.x:
             slope_x = evaluated.v[i_p]
             slope_v = model.particle_inv_mass[i_p] * self.forces.particle_force(
@@ -68,7 +68,7 @@ class RungeKutta4:
                 self.sum_v[i_p] += w * slope_v
             if ti.static(position == 2):
                 if model.particle_inv_mass[i_p] == 0:
-                    out.x[i_p], out.v[i_p] = model.pin_target(i_p, step_end)
+                    out.x[i_p], out.v[i_p] = model.pin_target(i_p, t + dt)
                 else:
                     out.x[i_p] = start.x[i_p] + h * self.sum_x[i_p]
                     out.v[i_p] = start.v[i_p] + h * self.sum_v[i_p]
