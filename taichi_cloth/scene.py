@@ -174,20 +174,37 @@ class BodyConfig:
 
 @dataclass(frozen=True)
 class RenderConfig:
-    width: int = setting(640, "int", low=16, high=8192)
-    height: int = setting(480, "int", low=16, high=8192)
-    camera_position: tuple = setting([0.0, 1.1, 2.6], "float_list", length=3)
-    camera_lookat: tuple = setting([0.0, 0.8, 0.0], "float_list", length=3)
+    width: int = setting(640, "int", low=16, high=8192, doc="frame width, pixels")
+    height: int = setting(480, "int", low=16, high=8192, doc="frame height, pixels")
+    camera_position: tuple = setting([0.9, 1.25, 3.1], "float_list", length=3, doc="m")
+    camera_lookat: tuple = setting([0.0, 0.8, 0.0], "float_list", length=3, doc="m")
     fov: float = setting(40.0, "float", low=1.0, high=170.0, doc="vertical field of view, degrees")
-    texture: str = setting("", "str", doc="image file for the cloth, relative to the scene file")
+    texture: str = setting("", "str", doc="cloth print: an image file relative to the scene "
+                                          "file; \"\" = the shipped pareo print on a skirt and "
+                                          "cloth_color on a sheet; \"none\" = cloth_color")
+    texture_repeat: tuple = setting([1.0, 1.0], "float_list", low=0.0, low_inclusive=False,
+                                    length=2, doc="times the image tiles across [u, v]")
     cloth_color: tuple = setting([0.85, 0.3, 0.25], "float_list", low=0.0, high=1.0, length=3)
+    subdivision: int = setting(6, "int", low=1, high=16,
+                               doc="render vertices per cloth particle spacing (smooth "
+                                   "Catmull-Rom surface through the particles)")
+    body_color: tuple = setting([0.80, 0.58, 0.45], "float_list", low=0.0, high=1.0, length=3,
+                                doc="skin")
+    background: tuple = setting([0.80, 0.87, 0.93], "float_list", low=0.0, high=1.0, length=3)
+    ground: bool = setting(True, "bool", doc="draw a floor at y = 0 (or [effects.ground] height)")
+    ambient: float = setting(0.38, "float", low=0.0, high=2.0,
+                             doc="light from everywhere, fraction of a surface's colour")
+    light: float = setting(0.62, "float", low=0.0, high=2.0,
+                           doc="key light above the camera's right shoulder (a fill light from "
+                               "the left has a third of it)")
 
 
 @dataclass(frozen=True)
 class OutputConfig:
     dir: str = setting("", "str", doc="output folder; default output/<scene>")
-    meshes: tuple = setting([], "str_list", choices=MESH_FORMATS)
-    video: str = setting("", "str", choices=("", "mp4", "gif"))
+    meshes: tuple = setting([], "str_list", choices=MESH_FORMATS,
+                            doc="cloth meshes per frame (xdmf: one time series)")
+    video: str = setting("", "str", choices=("", "mp4", "gif"), doc="render: also a video")
     body_meshes: bool = setting(False, "bool", doc="also export the body capsules as meshes")
 
 
