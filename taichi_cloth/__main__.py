@@ -4,6 +4,7 @@ import argparse
 import sys
 
 from .errors import InputError, UnstableError
+from .scene import MESH_FORMATS
 
 
 class ArgumentParser(argparse.ArgumentParser):
@@ -28,12 +29,41 @@ def add_scene_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quiet", action="store_true", help="no progress or summary")
 
 
+def mesh_formats(text: str) -> tuple[str, ...]:
+    """--meshes: a comma-separated list of mesh formats."""
+    formats = tuple(dict.fromkeys(name.strip().lower() for name in text.split(",") if name.strip()))
+    unknown = [name for name in formats if name not in MESH_FORMATS]
+    if unknown or not formats:
+        raise argparse.ArgumentTypeError(
+            f"unknown mesh format {unknown[0]!r} in {text!r}" if unknown else "no format given")
+    return formats
+
+
+def add_mesh_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--meshes", type=mesh_formats, metavar="LIST",
+                        help=f"cloth meshes per frame, a comma list of {','.join(MESH_FORMATS)} "
+                             "(obj/ply/vtu: one file per frame; xdmf: one time series) under "
+                             "meshes/ (default: the scene's output.meshes)")
+    parser.add_argument("--body-meshes", action="store_true",
+                        help="also write the body's capsules as meshes")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = ArgumentParser(prog="python -m taichi_cloth",
                             description="Mass-spring cloth on a dancing capsule body, in Taichi.")
     commands = parser.add_subparsers(dest="command", required=True, parser_class=ArgumentParser)
     simulate = commands.add_parser("simulate", help="physics only; writes stats.json")
     add_scene_arguments(simulate)
+    add_mesh_arguments(simulate)
+    render = commands.add_parser("render", help="simulate and write PNG frames (headless GGUI), "
+                                                "a video and meshes when asked")
+    add_scene_arguments(render)
+    render.add_argument("--width", type=int, help="frame width in pixels (default: render.width)")
+    render.add_argument("--height", type=int,
+                        help="frame height in pixels (default: render.height)")
+    render.add_argument("--video", choices=("mp4", "gif"),
+                        help="also write <scene>.mp4 (H.264) or .gif at the scene's fps")
+    add_mesh_arguments(render)
     commands.add_parser("scenes", help="list the shipped scenes")
     commands.add_parser("materials", help="list the fabric presets")
     return parser
@@ -45,7 +75,11 @@ def main(argv=None) -> int:
     try:
         if args.command == "simulate":
             return commands.simulate(args.scene, args.overrides, args.frames, args.out,
-                                     args.arch, args.quiet)
+                                     args.arch, args.quiet, args.meshes, args.body_meshes)
+        if args.command == "render":
+            return commands.render(args.scene, args.overrides, args.frames, args.out, args.arch,
+                                   args.quiet, args.width, args.height, args.video, args.meshes,
+                                   args.body_meshes)
         if args.command == "scenes":
             return commands.list_scenes()
         if args.command == "materials":

@@ -1,14 +1,20 @@
 """What each command-line command does; ``__main__`` only parses arguments and calls these."""
 
+import contextlib
 import os
+import time
 from pathlib import Path
 
 from .errors import InputError
-from .export import write_json
+from .export import (MeshSeries, copy_file, remove_stale_frames, seam_split, video_writer,
+                     write_json, write_material, write_png)
 from .materials import PRESETS
+from .progress import Progress
 from .scene import Scene, load_scene, shipped_scene_names
 
 OUTPUT_ROOT = Path("output")
+FRAME_DIR = "frames"  # PNG frames, inside the output folder
+MESH_DIR = "meshes"
 
 
 def prepare_scene(scene_name: str, overrides: list[str], frames: int | None, arch: str | None):
@@ -50,25 +56,124 @@ def make_body_rig(scene: Scene):
     return BodyRig(scene)
 
 
-def simulate(scene_name: str, overrides: list[str], frames: int | None, out: str | None,
-             arch: str | None, quiet: bool) -> int:
-    """Physics only: run the scene and write stats.json."""
+def check_size(value: int, flag: str) -> None:
+    """--width/--height: the renderer's pixel range."""
+    if not 16 <= value <= 8192:
+        raise InputError(f"{flag} {value}: must be between 16 and 8192 pixels")
+
+
+def mesh_series(scene: Scene, simulation, directory: Path, formats, body_meshes: bool) -> list:
+    """(MeshSeries, points(t) → (V, 3) m) for the cloth and, if asked and present, the body."""
+    from .texture import texture_path
+    if not formats:
+        return []
+    folder = directory / MESH_DIR
+    source, uvs, triangles = seam_split(simulation.garment)
+    image = texture_path(scene)
+    if "obj" in formats:
+        if image is not None:
+            copy_file(image, folder / image.name)
+        write_material(folder / "cloth.mtl", "cloth", scene.render.cloth_color,
+                       image.name if image is not None else "")
+    cloth = MeshSeries(folder, "cloth", formats, simulation.garment.triangles,
+                       (source, uvs * scene.render.texture_repeat, triangles), material=True)
+    series = [(cloth, lambda t: simulation.positions())]
+    if body_meshes and simulation.body_rig is not None:
+        from .surfaces import BodySurface
+        surface = BodySurface(simulation.body_rig.body)
+
+        def body_points(t):
+            surface.update(t)
+            return surface.points()
+
+        series.append((MeshSeries(folder, "body", formats, surface.triangles), body_points))
+    return series
+
+
+def run_scene(scene: Scene, frame_count: int, directory: Path, quiet: bool,
+              size: tuple[int, int] | None = None, video: str = "", meshes=(),
+              body_meshes: bool = False) -> int:
+    """Simulate ``frame_count`` frames; per frame render a PNG and a video frame (when ``size``
+    is given) and write meshes; then stats.json and a one-line summary."""
     from .simulation import Simulation
-    scene, frame_count = prepare_scene(scene_name, overrides, frames, arch)
-    directory = output_dir(scene, out)
     check_writable(directory, "--out")
     simulation = Simulation(scene, make_body_rig(scene))
-    record = simulation.run(frame_count)
+    with contextlib.ExitStack() as stack:
+        renderer = append_video = None
+        if size is not None:
+            from .render import Renderer
+            body = simulation.body_rig.body if simulation.body_rig is not None else None
+            renderer = stack.enter_context(Renderer(scene, simulation.garment, body, *size))
+            if video:
+                append_video = stack.enter_context(video_writer(
+                    directory / f"{scene.name}.{video}", video, scene.scene.fps))
+        series = mesh_series(scene, simulation, directory, meshes, body_meshes)
+        progress = stack.enter_context(Progress(scene.name, frame_count, quiet))
+        seconds = {"render": 0.0, "export": 0.0}
+
+        def on_frame(frame, metrics):
+            t = simulation.frame_time(frame)
+            started = time.perf_counter()
+            if renderer is not None:
+                image = renderer.draw(simulation.state_in.x, t)
+                write_png(directory / FRAME_DIR / f"frame_{frame:05d}.png", image)
+                if append_video is not None:
+                    append_video(image)
+            rendered = time.perf_counter()
+            for mesh, points in series:
+                mesh.append(frame, t, points(t))
+            seconds["render"] += rendered - started
+            seconds["export"] += time.perf_counter() - rendered
+            progress.update(t)
+
+        record = simulation.run(frame_count, on_frame)
+        for mesh, _ in series:
+            mesh.finish()
+    if renderer is not None:
+        record.wall_seconds["render"] = seconds["render"]
+        remove_stale_frames(directory / FRAME_DIR, "frame", frame_count)
+    if series:
+        record.wall_seconds["export"] = seconds["export"]
+        for mesh, _ in series:
+            remove_stale_frames(directory / MESH_DIR, mesh.name, frame_count)
     stats = simulation.stats(record)
     write_json(directory / "stats.json", stats)
     if not quiet:
-        print(f"{scene.name}: {len(record.frames)} frames, {stats['integrator']} at dt = "
-              f"{stats['dt']:.6g} s ({stats['substeps_per_frame']} substeps/frame), "
-              f"max strain {stats['max_strain']:.4f}, max penetration "
-              f"{stats['max_penetration'] * 1000:.2f} mm, compile "
-              f"{stats['wall_seconds']['compile']:.2f} s, simulate "
-              f"{stats['wall_seconds']['simulate']:.2f} s → {directory / 'stats.json'}")
+        print(summary(stats, directory))
     return 0
+
+
+def summary(stats: dict, directory: Path) -> str:
+    """One line: frames, integrator and dt, strain and penetration, seconds per phase, where."""
+    seconds = ", ".join(f"{phase} {value:.2f} s" for phase, value in stats["wall_seconds"].items())
+    return (f"{stats['scene']}: {stats['frames']} frames, {stats['integrator']} at dt = "
+            f"{stats['dt']:.6g} s ({stats['substeps_per_frame']} substeps/frame), max strain "
+            f"{stats['max_strain']:.4f}, max penetration {stats['max_penetration'] * 1000:.2f} mm; "
+            f"{seconds} → {directory}")
+
+
+def simulate(scene_name: str, overrides: list[str], frames: int | None, out: str | None,
+             arch: str | None, quiet: bool, meshes=None, body_meshes: bool = False) -> int:
+    """Physics only: run the scene and write stats.json (and meshes when asked)."""
+    scene, frame_count = prepare_scene(scene_name, overrides, frames, arch)
+    return run_scene(scene, frame_count, output_dir(scene, out), quiet,
+                     meshes=scene.output.meshes if meshes is None else meshes,
+                     body_meshes=body_meshes or scene.output.body_meshes)
+
+
+def render(scene_name: str, overrides: list[str], frames: int | None, out: str | None,
+           arch: str | None, quiet: bool, width: int | None = None, height: int | None = None,
+           video: str | None = None, meshes=None, body_meshes: bool = False) -> int:
+    """Simulate and write PNG frames (headless GGUI), and a video and meshes when asked."""
+    for value, flag in ((width, "--width"), (height, "--height")):
+        if value is not None:
+            check_size(value, flag)
+    scene, frame_count = prepare_scene(scene_name, overrides, frames, arch)
+    size = (width or scene.render.width, height or scene.render.height)
+    return run_scene(scene, frame_count, output_dir(scene, out), quiet, size,
+                     video=scene.output.video if video is None else video,
+                     meshes=scene.output.meshes if meshes is None else meshes,
+                     body_meshes=body_meshes or scene.output.body_meshes)
 
 
 def list_scenes() -> int:

@@ -1,0 +1,162 @@
+"""Exported files: meshes (OBJ with UVs, PLY, VTU, one XDMF series) read back with meshio, videos
+read back with imageio, and writes that leave whole files or nothing. No window is needed."""
+
+from pathlib import Path
+
+import imageio
+import meshio
+import numpy as np
+import pytest
+
+from taichi_cloth import commands
+from taichi_cloth.__main__ import main
+from taichi_cloth.body import Body
+from taichi_cloth.export import seam_split, video_writer, write_png
+from taichi_cloth.garment import build_garment
+from taichi_cloth.scene import load_scene
+from taichi_cloth.surfaces import capsule_template
+
+FRAMES = 3
+COLUMNS, ROWS = 16, 8
+FORMATS = ("obj", "ply", "vtu", "xdmf")
+
+
+@pytest.fixture(scope="module")
+def hula_meshes(tmp_path_factory):
+    """``simulate hula`` for 3 small frames with every mesh format and the body; its meshes/."""
+    out = tmp_path_factory.mktemp("meshes")
+    commands.simulate("hula", [f"cloth.resolution=[{COLUMNS},{ROWS}]"], FRAMES, str(out), None,
+                      True, meshes=FORMATS, body_meshes=True)
+    return out / "meshes"
+
+
+def triangles_of(mesh: meshio.Mesh) -> np.ndarray:
+    assert [block.type for block in mesh.cells] == ["triangle"]
+    return mesh.cells[0].data
+
+
+def body_counts() -> tuple[int, int]:
+    body = Body("hula")
+    direction, _, triangles = capsule_template()
+    capsules = body.capsule_count + body.display_capsule_count
+    return capsules * len(direction), capsules * len(triangles)
+
+
+def test_one_file_per_frame_per_format_and_one_series_per_object(hula_meshes):
+    names = sorted(p.name for p in hula_meshes.iterdir())
+    for name in ("cloth", "body"):
+        for file_format in ("obj", "ply", "vtu"):
+            assert [n for n in names if n.startswith(f"{name}_") and n.endswith(file_format)] == \
+                [f"{name}_{k:05d}.{file_format}" for k in range(FRAMES)]
+        assert f"{name}.xdmf" in names
+    assert "cloth.mtl" in names and "pareo.png" in names
+    assert not [n for n in names if n.startswith(".")]  # no temporary file left
+
+
+@pytest.mark.parametrize("file_format", ["ply", "vtu"])
+def test_cloth_and_body_meshes_read_back_with_their_counts(hula_meshes, file_format):
+    particles, triangles = COLUMNS * ROWS, 2 * COLUMNS * (ROWS - 1)
+    body_vertices, body_triangles = body_counts()
+    for frame in range(FRAMES):
+        cloth = meshio.read(hula_meshes / f"cloth_{frame:05d}.{file_format}")
+        assert cloth.points.shape == (particles, 3) and np.isfinite(cloth.points).all()
+        assert triangles_of(cloth).shape == (triangles, 3)
+        body = meshio.read(hula_meshes / f"body_{frame:05d}.{file_format}")
+        assert body.points.shape == (body_vertices, 3) and np.isfinite(body.points).all()
+        assert triangles_of(body).shape == (body_triangles, 3)
+
+
+def test_obj_carries_uvs_with_the_seam_column_duplicated(hula_meshes):
+    path = hula_meshes / "cloth_00002.obj"
+    mesh = meshio.read(path)
+    assert mesh.points.shape == (COLUMNS * ROWS + ROWS, 3) and np.isfinite(mesh.points).all()
+    triangles = triangles_of(mesh)
+    assert triangles.shape == (2 * COLUMNS * (ROWS - 1), 3)
+    uv = mesh.point_data["obj:vt"]
+    assert uv.shape == (len(mesh.points), 2) and uv.min() >= 0 and uv.max() <= 1
+    assert np.ptp(uv[triangles][..., 0], axis=1).max() < 1.5 / COLUMNS  # no triangle wraps
+    text = path.read_text()
+    assert "mtllib cloth.mtl" in text and "\nf 1/1 " in text  # faces reference their UVs
+    seam_copies = mesh.points[COLUMNS * ROWS:]
+    np.testing.assert_array_equal(seam_copies, mesh.points[:COLUMNS * ROWS:COLUMNS])
+    assert "map_Kd pareo.png" in (hula_meshes / "cloth.mtl").read_text()
+
+
+def test_xdmf_series_has_one_step_per_frame_with_moving_geometry(hula_meshes):
+    fps = load_scene("hula").scene.fps
+    with meshio.xdmf.TimeSeriesReader(hula_meshes / "cloth.xdmf") as reader:
+        assert reader.num_steps == FRAMES
+        points, cells = reader.read_points_cells()
+        assert points.shape == (COLUMNS * ROWS, 3) and cells[0].data.shape[0] == 2 * COLUMNS * (ROWS - 1)
+        times = [reader.read_data(k)[0] for k in range(FRAMES)]
+    np.testing.assert_allclose(times, (np.arange(FRAMES) + 1) / fps)
+    last = meshio.read(hula_meshes / f"cloth_{FRAMES - 1:05d}.vtu").points
+    np.testing.assert_allclose(points, meshio.read(hula_meshes / "cloth_00000.vtu").points,
+                               atol=1e-5)
+    assert not np.allclose(points, last)
+    with meshio.xdmf.TimeSeriesReader(hula_meshes / "body.xdmf") as reader:
+        assert reader.num_steps == FRAMES
+        assert reader.read_points_cells()[0].shape == (body_counts()[0], 3)
+
+
+def test_seam_split_of_a_sheet_changes_nothing():
+    scene = load_scene("sheet", ("cloth.resolution=[5,4]",))
+    garment = build_garment(scene.cloth, scene.material, None, scene.path)
+    source, uvs, triangles = seam_split(garment)
+    np.testing.assert_array_equal(source, np.arange(20))
+    np.testing.assert_array_equal(triangles, garment.triangles)
+    assert uvs is garment.uvs
+
+
+@pytest.mark.parametrize("video_format", ["mp4", "gif"])
+def test_video_reads_back_with_its_frames_and_even_size(tmp_path, video_format):
+    target = tmp_path / f"clip.{video_format}"
+    ramp = np.linspace(0, 255, 33 * 25 * 3).reshape(25, 33, 3).astype(np.uint8)
+    with video_writer(target, video_format, fps=12) as append:
+        for k in range(5):
+            append(np.roll(ramp, 3 * k, axis=1))
+    frames = imageio.v2.mimread(target)
+    assert len(frames) == 5
+    expected = (24, 32) if video_format == "mp4" else (25, 33)
+    assert frames[0].shape[:2] == expected
+    assert sorted(p.name for p in tmp_path.iterdir()) == [target.name]
+
+
+def test_an_interrupted_video_or_frame_leaves_no_file(tmp_path, monkeypatch):
+    target = tmp_path / "clip.mp4"
+    with pytest.raises(KeyboardInterrupt):
+        with video_writer(target, "mp4", fps=30) as append:
+            append(np.zeros((16, 16, 3), np.uint8))
+            raise KeyboardInterrupt
+
+    def half_written(path, image):
+        Path(path).write_bytes(b"\x89PNG half")
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr("taichi_cloth.export.iio.imwrite", half_written)
+    with pytest.raises(KeyboardInterrupt):
+        write_png(tmp_path / "frame.png", np.zeros((4, 4, 3), np.uint8))
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("argv, flag", [
+    (["render", "hula", "--meshes", "obj,stl"], "--meshes"),
+    (["simulate", "hula", "--meshes", ""], "--meshes"),
+    (["render", "hula", "--video", "avi"], "--video"),
+])
+def test_bad_output_flags_exit_2_naming_the_flag(argv, flag, capsys):
+    with pytest.raises(SystemExit) as stop:
+        main(argv)
+    assert stop.value.code == 2
+    message = capsys.readouterr().err.strip()
+    assert len(message.splitlines()) == 1 and flag in message
+
+
+def test_stale_frames_of_a_longer_run_are_removed(tmp_path):
+    meshes = tmp_path / "meshes"
+    meshes.mkdir()
+    (meshes / "cloth_00007.ply").write_text("old")
+    commands.simulate("skirt", ["cloth.resolution=[6,3]"], 1, str(tmp_path), None, True,
+                      meshes=("ply",))
+    assert sorted(p.name for p in meshes.iterdir()) == ["cloth_00000.ply"]
+    assert Path(tmp_path / "stats.json").exists()
