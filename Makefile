@@ -1,4 +1,5 @@
-# taichi_cloth: every target sets up .venv from requirements.txt on first use.
+# taichi_cloth: every target sets up .venv from requirements.txt on first use; setup also makes
+# sure a Vulkan driver is there for headless rendering (scripts/ensure-vulkan.sh).
 PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
@@ -15,9 +16,16 @@ $(STAMP): requirements.txt
 	touch $(STAMP)
 
 setup: $(STAMP)
+	@sh scripts/ensure-vulkan.sh
 
 simulate: setup
 	$(PY) -m taichi_cloth simulate $(SCENE) $(ARGS)
+
+render: setup
+	$(PY) -m taichi_cloth render $(SCENE) $(ARGS)
+
+video: setup
+	$(PY) -m taichi_cloth render $(SCENE) --video mp4 $(ARGS)
 
 test: setup
 	$(PY) -m pytest -q tests
