@@ -20,6 +20,7 @@ frame whose third axis is (b − a)/|b − a|; the normal is F n.
 import numpy as np
 import taichi as ti
 
+from .body import DISPLAY_CAPSULE_NAMES
 from .garment import Garment, grid_triangles
 from .model import triangle_gather_lists
 
@@ -30,8 +31,9 @@ GROUND_RINGS = (1.2, 1.5, 2.0, 2.5, 3.0, 4.0, 5.0, 6.0, 7.0, 9.0, 12.0)  # m, ra
 SHADOW_STRENGTH = 0.4  # fraction of the floor's light a capsule touching it takes away
 SHADOW_SOFTNESS = 0.015  # m, blur of the shadow of a capsule on the floor
 SHADOW_HEIGHT = 0.12  # m: a capsule this high above the floor casts a quarter-strength shadow
-SHADOW_AMBIENT = 0.3  # the faint, wide shadow of the whole figure: its strength,
-SHADOW_AMBIENT_RADIUS, SHADOW_AMBIENT_HEIGHT = 0.15, 0.25  # m: its width, and the height that halves it
+SHADOW_AMBIENT = 0.3  # strength of the faint, wide shadow of the whole figure
+SHADOW_AMBIENT_RADIUS = 0.15  # m, its width
+SHADOW_AMBIENT_HEIGHT = 0.25  # m, the height at which a capsule's share of it halves
 GROUND_FADE = (1.0, 7.0)  # m: the floor blends from sand into the background between these radii
 GROUND_SEGMENTS = 128
 GROUND_COLOR = (0.86, 0.80, 0.70)  # sand
@@ -58,7 +60,7 @@ def spline_stencil(count: int, subdivision: int, periodic: bool):
     return position, index, catmull_rom_weights(position - base)
 
 
-def gather_normals_csr(triangles: np.ndarray, vertex_count: int):
+def triangle_gather_fields(triangles: np.ndarray, vertex_count: int):
     """Taichi fields of the triangles around each vertex (CSR start (V+1,), triangle (K,))."""
     start, item = triangle_gather_lists(triangles, vertex_count)
     start_field = ti.field(ti.i32, vertex_count + 1)
@@ -108,10 +110,8 @@ class ClothSurface(Surface):
         self.weight = ti.field(ti.f32, (self.vertex_count, 16))
         self.source.from_numpy(source.reshape(self.vertex_count, 16).astype(np.int32))
         self.weight.from_numpy(weight.reshape(self.vertex_count, 16).astype(np.float32))
-        self.triangle_start, self.triangle_item = gather_normals_csr(self.triangles,
-                                                                     self.vertex_count)
-        self.triangle_field = ti.Vector.field(3, ti.i32, len(self.triangles))
-        self.triangle_field.from_numpy(self.triangles)
+        self.triangle_start, self.triangle_item = triangle_gather_fields(self.triangles,
+                                                                         self.vertex_count)
         u_step = garment.uvs[1, 0] - garment.uvs[0, 0]
         v_step = garment.uvs[garment.columns, 1] - garment.uvs[0, 1]
         uu, vv = np.meshgrid(garment.uvs[0, 0] + column_position * u_step,
@@ -130,9 +130,10 @@ class ClothSurface(Surface):
         for i in range(self.vertex_count):
             n = ti.Vector.zero(ti.f32, 3)
             for k in range(self.triangle_start[i], self.triangle_start[i + 1]):
-                t = self.triangle_field[self.triangle_item[k]]
-                p0 = self.vertices[t[0]]
-                n += (self.vertices[t[1]] - p0).cross(self.vertices[t[2]] - p0)
+                corner = 3 * self.triangle_item[k]
+                p0 = self.vertices[self.indices[corner]]
+                n += (self.vertices[self.indices[corner + 1]] - p0).cross(
+                    self.vertices[self.indices[corner + 2]] - p0)
             self.normals[i] = n / ti.max(n.norm(), 1e-12)
 
 
@@ -165,14 +166,14 @@ def capsule_colors(body, skin, direction: np.ndarray, ends: np.ndarray) -> np.nd
     names = getattr(body, "capsule_names", None)
     if names is None:
         return np.broadcast_to(PROP_COLOR, (capsule_count, len(ends), 3)).copy()
-    from .body import DISPLAY_CAPSULE_NAMES
     names = list(names) + list(DISPLAY_CAPSULE_NAMES)
     colors = np.broadcast_to(skin, (capsule_count, len(ends), 3)).copy()
     for k, name in enumerate(names):
         if name in ("back_upper", "back"):
             colors[k][(ends < 0.5) | (direction[:, 2] < 0.45)] = TOP_COLOR  # shoulders bare
-        elif name == "head":
-            colors[k][(ends > 0.5) | (direction[:, 2] > 0.3)] = HAIR_COLOR
+        elif name == "head":  # the top, and the back: local +x is world −z on an upright capsule
+            colors[k][((ends > 0.5) & (direction[:, 2] > 0.25)) | (direction[:, 0] > 0.3)] = \
+                HAIR_COLOR
     return colors
 
 
