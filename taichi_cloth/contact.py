@@ -46,20 +46,43 @@ def max_capsule_penetration(x: np.ndarray, a: np.ndarray, b: np.ndarray,
 
 
 @ti.func
+def normal_force_magnitude(mass, depth, normal_speed, stiffness, damping_ratio):
+    """m·(k̂·d − 2ζ·√k̂·(u·n)), clamped at 0: contact pushes, never pulls [N]."""
+    return ti.max(mass * (stiffness * depth - 2 * damping_ratio * ti.sqrt(stiffness) * normal_speed),
+                  0.0)
+
+
+@ti.func
+def friction_viscosity(mass, normal_magnitude, slip_speed, stiffness, friction):
+    """Regularised Coulomb friction as a viscous coefficient c_t [N·s/m], f_t = −c_t·u_t:
+    c_t = min(μ·f_n, 2·m·√k̂·|u_t|) / |u_t| (2·m·√k̂ at zero slip)."""
+    limit = 2 * mass * ti.sqrt(stiffness)
+    return ti.min(friction * normal_magnitude / ti.max(slip_speed, 1e-30), limit)
+
+
+@ti.func
 def penalty_force(mass, depth, normal, relative_velocity, stiffness, damping_ratio, friction):
     """Normal penalty spring and dashpot plus regularised Coulomb friction (module docstring)."""
-    root_stiffness = ti.sqrt(stiffness)
     normal_speed = relative_velocity.dot(normal)
-    normal_magnitude = ti.max(mass * (stiffness * depth
-                                      - 2 * damping_ratio * root_stiffness * normal_speed), 0.0)
-    force = normal_magnitude * normal
+    normal_magnitude = normal_force_magnitude(mass, depth, normal_speed, stiffness, damping_ratio)
     slip = relative_velocity - normal_speed * normal
-    slip_speed = slip.norm()
-    if slip_speed > 0:
-        friction_magnitude = ti.min(friction * normal_magnitude,
-                                    2 * mass * root_stiffness * slip_speed)
-        force -= friction_magnitude / slip_speed * slip
-    return force
+    viscosity = friction_viscosity(mass, normal_magnitude, slip.norm(), stiffness, friction)
+    return normal_magnitude * normal - viscosity * slip
+
+
+@ti.func
+def penalty_damping_block(mass, depth, normal, relative_velocity, stiffness, damping_ratio,
+                          friction, real: ti.template()):
+    """∂f/∂v of ``penalty_force`` with the friction coefficient frozen at the current slip:
+    −2ζ·m·√k̂·n·nᵀ − c_t·(I − n·nᵀ). Friction then acts implicitly like a damper (an explicit
+    friction of stiffness 2·m·√k̂ would overshoot at large steps); negative semi-definite."""
+    normal_speed = relative_velocity.dot(normal)
+    normal_magnitude = normal_force_magnitude(mass, depth, normal_speed, stiffness, damping_ratio)
+    slip = relative_velocity - normal_speed * normal
+    viscosity = friction_viscosity(mass, normal_magnitude, slip.norm(), stiffness, friction)
+    outer = normal.outer_product(normal)
+    identity = ti.Matrix.identity(real, 3)
+    return -2 * damping_ratio * mass * ti.sqrt(stiffness) * outer - viscosity * (identity - outer)
 
 
 @ti.func
@@ -91,33 +114,72 @@ class CapsuleContact:
         self.capsule_radius = ti.field(model.real, self.capsule_count)
         self.capsule_radius.from_numpy(np.asarray(capsule_radius, dtype=track.numpy_real))
 
+    has_local_jacobian = True
+
     @ti.func
-    def capsule_at(self, i_c, t):
+    def probe(self, i_c, position, t):
+        """Capsule i_c at time t seen from ``position``: (depth inside radius + margin [m],
+        unit normal out of the capsule, distance to the axis [m], segment parameter s, unit
+        axis, surface velocity at the closest point [m/s])."""
         a, velocity_a = self.track.at(2 * i_c, t)
         b, velocity_b = self.track.at(2 * i_c + 1, t)
-        return a, b, velocity_a, velocity_b
+        radius = self.capsule_radius[i_c] + self.model.real(self.margin)
+        s = closest_on_segment(position, a, b)
+        offset = position - (a + s * (b - a))
+        distance = offset.norm()
+        normal = offset / ti.max(distance, 1e-30)
+        axis = (b - a) / ti.max((b - a).norm(), 1e-30)
+        surface_velocity = velocity_a + s * (velocity_b - velocity_a)
+        return radius - distance, normal, distance, s, axis, surface_velocity
+
+    @ti.func
+    def near(self, i_c, position, t):
+        """Cheap bound: is ``position`` inside capsule i_c's bounding sphere (centre (a + b)/2,
+        radius |b − a|/2 + r + margin)?"""
+        a, _ = self.track.at(2 * i_c, t)
+        b, _ = self.track.at(2 * i_c + 1, t)
+        reach = 0.5 * (b - a).norm() + self.capsule_radius[i_c] + self.model.real(self.margin)
+        return (position - 0.5 * (a + b)).norm_sqr() < reach * reach
 
     @ti.func
     def force(self, model, x, v, i_p, t):
         real = model.real
         f = ti.Vector.zero(real, 3)
-        position = x[i_p]
-        margin = real(self.margin)
         for i_c in range(self.capsule_count):
-            a, b, velocity_a, velocity_b = self.capsule_at(i_c, t)
-            radius = self.capsule_radius[i_c] + margin
-            reach = 0.5 * (b - a).norm() + radius
-            if (position - 0.5 * (a + b)).norm_sqr() < reach * reach:
-                s = closest_on_segment(position, a, b)
-                offset = position - (a + s * (b - a))
-                distance = offset.norm()
-                depth = radius - distance
+            if self.near(i_c, x[i_p], t):
+                depth, normal, distance, _, _, surface_velocity = self.probe(i_c, x[i_p], t)
                 if depth > 0 and distance > 0:
-                    surface_velocity = velocity_a + s * (velocity_b - velocity_a)
-                    f += penalty_force(model.particle_mass[i_p], depth, offset / distance,
+                    f += penalty_force(model.particle_mass[i_p], depth, normal,
                                        v[i_p] - surface_velocity, real(self.stiffness),
                                        real(self.damping_ratio), real(self.friction))
         return f
+
+    @ti.func
+    def local_jacobian(self, model, x, v, i_p, t, definite: ti.template()):
+        """(∂f/∂x, ∂f/∂v) of the penalty on particle i_p:
+        ∂f/∂x = m·k̂·[−n·nᵀ + (d/|x − y|)·P], P = I − n·nᵀ (− â·âᵀ on the cylinder part), friction
+        left out; ∂f/∂v from ``penalty_damping_block``. The curvature term d/|x − y|·P is
+        positive; ``definite`` drops it."""
+        real = model.real
+        stiffness_block = ti.Matrix.zero(real, 3, 3)
+        damping_block = ti.Matrix.zero(real, 3, 3)
+        mass = model.particle_mass[i_p]
+        identity = ti.Matrix.identity(real, 3)
+        for i_c in range(self.capsule_count):
+            if self.near(i_c, x[i_p], t):
+                depth, normal, distance, s, axis, surface_velocity = self.probe(i_c, x[i_p], t)
+                if depth > 0 and distance > 0:
+                    outer = normal.outer_product(normal)
+                    stiffness_block -= mass * real(self.stiffness) * outer
+                    damping_block += penalty_damping_block(
+                        mass, depth, normal, v[i_p] - surface_velocity, real(self.stiffness),
+                        real(self.damping_ratio), real(self.friction), real)
+                    if ti.static(not definite):
+                        tangent = identity - outer
+                        if 0 < s < 1:
+                            tangent -= axis.outer_product(axis)
+                        stiffness_block += mass * real(self.stiffness) * depth / distance * tangent
+        return stiffness_block, damping_block
 
     @ti.func
     def apply(self, state, t):
@@ -126,19 +188,12 @@ class CapsuleContact:
         relative to the surface."""
         model = self.model
         x, v = ti.static(state.x, state.v)
-        margin = model.real(self.margin)
         for i_p in x:
             if model.particle_inv_mass[i_p] > 0:
                 for i_c in range(self.capsule_count):
-                    a, b, velocity_a, velocity_b = self.capsule_at(i_c, t)
-                    s = closest_on_segment(x[i_p], a, b)
-                    offset = x[i_p] - (a + s * (b - a))
-                    distance = offset.norm()
-                    radius = self.capsule_radius[i_c] + margin
-                    if distance < radius and distance > 0:
-                        normal = offset / distance
-                        x[i_p] += (radius - distance) * normal
-                        surface_velocity = velocity_a + s * (velocity_b - velocity_a)
+                    depth, normal, distance, _, _, surface_velocity = self.probe(i_c, x[i_p], t)
+                    if depth > 0 and distance > 0:
+                        x[i_p] += depth * normal
                         inward = (v[i_p] - surface_velocity).dot(normal)
                         if inward < 0:
                             v[i_p] -= inward * normal
@@ -149,6 +204,8 @@ class GroundContact:
     """Penalty contact with the plane y = height (plus margin), at rest."""
 
     name = "ground"
+
+    has_local_jacobian = True
 
     def __init__(self, config: GroundEffect):
         self.surface_height = config.height + config.thickness
@@ -165,3 +222,19 @@ class GroundContact:
                               v[i_p], real(self.stiffness), real(self.damping_ratio),
                               real(self.friction))
         return f
+
+    @ti.func
+    def local_jacobian(self, model, x, v, i_p, t, definite: ti.template()):
+        """(∂f/∂x, ∂f/∂v) of the penalty: −m·k̂·e_y·e_yᵀ (exact for a plane, so ``definite``
+        changes nothing) and ``penalty_damping_block``."""
+        real = model.real
+        stiffness_block = ti.Matrix.zero(real, 3, 3)
+        damping_block = ti.Matrix.zero(real, 3, 3)
+        depth = real(self.surface_height) - x[i_p][1]
+        if depth > 0:
+            mass = model.particle_mass[i_p]
+            stiffness_block[1, 1] = -mass * real(self.stiffness)
+            damping_block = penalty_damping_block(
+                mass, depth, ti.Vector([0.0, 1.0, 0.0], dt=real), v[i_p], real(self.stiffness),
+                real(self.damping_ratio), real(self.friction), real)
+        return stiffness_block, damping_block

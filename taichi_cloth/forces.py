@@ -9,6 +9,15 @@ solve see exactly the same forces.
 Spring i–j with rest length L, stiffness k, damping c, d = x_j − x_i, l = |d|, n = d / l:
     f_i = k (l − L) n + c ((v_j − v_i) · n) n,      f_j = −f_i.
 This is −∂E/∂x_i of E = ½ k (l − L)² plus a dashpot along the spring; internal forces sum to zero.
+
+Jacobians for the implicit integrator (Baraff & Witkin 1998, §5), as products with a vector u,
+gathered per particle like the forces. A spring's stiffness block is
+    K_s = ∂f_i/∂x_j = k·[n·nᵀ + (1 − L/l)·(I − n·nᵀ)],   (K·u)_i = Σ_s K_s·(u_j − u_i),
+and its dashpot's D_s = ∂f_i/∂v_j = c·n·nᵀ (its ∂/∂x, proportional to the relative velocity, is
+left out). For a compressed spring (l < L) the geometric term (1 − L/l) is negative and can make
+the system indefinite; ``definite=True`` clamps it at 0 (the usual fix, Choi & Ko 2002), which the
+solver uses; ``definite=False`` is the exact derivative (for finite-difference tests). Effects
+with ``has_local_jacobian`` add a per-particle block (contact).
 """
 
 import numpy as np
@@ -69,6 +78,77 @@ class Forces:
                     magnitude += model.spring_damping[i_s] * (v[j_p] - v[i_p]).dot(n)
                 f += magnitude * n
         return f
+
+    @ti.func
+    def spring_blocks(self, x, i_p, k, definite: ti.template()):
+        """(neighbour j, K_s, D_s) of the k-th gather entry of particle i_p."""
+        model = self.model
+        i_s = model.particle_spring[k]
+        j_p = model.particle_neighbor[k]
+        d = x[j_p] - x[i_p]
+        length = d.norm()
+        stiffness_block = ti.Matrix.zero(model.real, 3, 3)
+        damping_block = ti.Matrix.zero(model.real, 3, 3)
+        if length > 0:
+            n = d / length
+            outer = n.outer_product(n)
+            geometric = 1 - model.spring_rest_length[i_s] / length
+            if ti.static(definite):
+                geometric = ti.max(geometric, 0.0)
+            identity = ti.Matrix.identity(model.real, 3)
+            stiffness_block = model.spring_stiffness[i_s] * (outer + geometric * (identity - outer))
+            if ti.static(model.has_dashpots):
+                damping_block = model.spring_damping[i_s] * outer
+        return j_p, stiffness_block, damping_block
+
+    @ti.func
+    def jacobian_products(self, x, v, u, i_p, t, definite: ti.template()):
+        """((∂f/∂x)·u, (∂f/∂v)·u) at particle i_p [N/m·u, N·s/m·u]."""
+        model = self.model
+        stiffness_product = ti.Vector.zero(model.real, 3)
+        damping_product = ti.Vector.zero(model.real, 3)
+        for k in range(model.particle_spring_start[i_p], model.particle_spring_start[i_p + 1]):
+            j_p, stiffness_block, damping_block = self.spring_blocks(x, i_p, k, definite)
+            relative = u[j_p] - u[i_p]
+            stiffness_product += stiffness_block @ relative
+            damping_product += damping_block @ relative
+        for e in ti.static(range(len(self.effects))):
+            if ti.static(getattr(self.effects[e], "has_local_jacobian", False)):
+                stiffness_block, damping_block = self.effects[e].local_jacobian(
+                    model, x, v, i_p, t, definite)
+                stiffness_product += stiffness_block @ u[i_p]
+                damping_product += damping_block @ u[i_p]
+        return stiffness_product, damping_product
+
+    @ti.func
+    def jacobian_diagonal(self, x, v, i_p, t):
+        """Diagonals of −∂f_i/∂x_i and −∂f_i/∂v_i (definite version), for a Jacobi
+        preconditioner."""
+        model = self.model
+        stiffness_diagonal = ti.Vector.zero(model.real, 3)
+        damping_diagonal = ti.Vector.zero(model.real, 3)
+        for k in range(model.particle_spring_start[i_p], model.particle_spring_start[i_p + 1]):
+            _, stiffness_block, damping_block = self.spring_blocks(x, i_p, k, True)
+            for c in ti.static(range(3)):
+                stiffness_diagonal[c] += stiffness_block[c, c]
+                damping_diagonal[c] += damping_block[c, c]
+        for e in ti.static(range(len(self.effects))):
+            if ti.static(getattr(self.effects[e], "has_local_jacobian", False)):
+                stiffness_block, damping_block = self.effects[e].local_jacobian(
+                    model, x, v, i_p, t, True)
+                for c in ti.static(range(3)):
+                    stiffness_diagonal[c] -= stiffness_block[c, c]
+                    damping_diagonal[c] -= damping_block[c, c]
+        return stiffness_diagonal, damping_diagonal
+
+    @ti.kernel
+    def evaluate_jacobian_products(self, x: ti.template(), v: ti.template(), u: ti.template(),
+                                   t: ti.f64, definite: ti.template(),
+                                   stiffness_out: ti.template(), damping_out: ti.template()):
+        """(∂f/∂x)·u and (∂f/∂v)·u for every particle (for tests and diagnostics)."""
+        for i_p in x:
+            stiffness_out[i_p], damping_out[i_p] = self.jacobian_products(
+                x, v, u, i_p, ti.cast(t, self.model.real), definite)
 
     @ti.func
     def particle_force(self, x, v, i_p, t):

@@ -19,7 +19,7 @@ from .errors import InputError
 from .materials import PRESETS, Material
 
 SCENES_DIR = Path(__file__).resolve().parent.parent / "scenes"
-INTEGRATOR_NAMES = ("euler", "symplectic", "rk4")
+INTEGRATOR_NAMES = ("euler", "symplectic", "rk4", "implicit")
 ARCH_NAMES = ("cpu", "cuda", "vulkan", "gpu")
 SPRING_FAMILIES = ("stretch", "shear", "bend")
 MESH_FORMATS = ("obj", "ply", "vtu", "xdmf")
@@ -56,13 +56,20 @@ class SimulationConfig:
                       doc="time step [s], or \"auto\" to derive it from the stability bound")
     arch: str = setting("cpu", "str", choices=ARCH_NAMES)
     precision: str = setting("f32", "str", choices=("f32", "f64"))
-    safety: float = setting(0.5, "float", low=0.0, high=1.0, low_inclusive=False,
+    safety: float = setting(0.8, "float", low=0.0, high=1.0, low_inclusive=False,
                             doc="fraction of the stability bound used by dt = \"auto\"")
     blowup_strain: float = setting(1.0, "float", low=0.0, low_inclusive=False,
-                                   doc="max stretch-spring strain at which a run counts as exploded")
-    cg_tolerance: float = setting(1e-4, "float", low=0.0, low_inclusive=False,
+                                   doc="max stretch-spring strain at which a frame counts as exploded")
+    max_speed: float = setting(50.0, "float", low=0.0, low_inclusive=False,
+                               doc="particle speed [m/s] at which a frame counts as exploded")
+    max_retries: int = setting(4, "int", low=0, high=20,
+                               doc="times a bad frame is redone with the step halved")
+    cg_tolerance: float = setting(1e-3, "float", low=0.0, low_inclusive=False,
                                   doc="implicit integrator: relative residual of conjugate gradients")
-    cg_max_iterations: int = setting(100, "int", low=1, high=100000)
+    cg_max_iterations: int = setting(500, "int", low=1, high=100000)
+    newton_iterations: int = setting(1, "int", low=1, high=50,
+                                     doc="implicit integrator: linearisations per step (1 = "
+                                         "Baraff & Witkin)")
 
 
 @dataclass(frozen=True)

@@ -8,6 +8,7 @@ a non-finite or exploded state stops the run with ``UnstableError`` (exit code 3
 of that frame is written.
 """
 
+import dataclasses
 import time
 from dataclasses import dataclass, field
 
@@ -35,9 +36,10 @@ class FrameMetrics:
     max_strain: float
     max_penetration: float
     center_of_mass: list
+    cg_iterations: float | None = None  # implicit integrator: mean CG iterations per step
 
     def as_dict(self) -> dict:
-        return dict(self.__dict__)
+        return {key: value for key, value in self.__dict__.items() if value is not None}
 
 
 @dataclass
@@ -46,6 +48,8 @@ class RunRecord:
 
     frames: list = field(default_factory=list)
     wall_seconds: dict = field(default_factory=lambda: {"compile": 0.0, "simulate": 0.0})
+    cg_iterations: list = field(default_factory=list)  # per implicit step
+    retries: int = 0  # frames rolled back and redone with the step halved
 
     @property
     def max_strain(self) -> float:
@@ -76,10 +80,12 @@ class Simulation:
         collision = scene.effects.get("collision")
         projection = body_rig.contact if collision is not None and \
             collision.mode == "penalty+projection" else None
-        self.integrator = make_integrator(scene.simulation.integrator, self.forces, projection)
+        self.integrator = make_integrator(scene.simulation.integrator, self.forces, projection,
+                                          scene.simulation)
         self.time_step = self._choose_time_step()
         self.state_in = self.model.state()
         self.state_out = self.model.state()
+        self.backup = self.model.state()
         self._compiled_batches = set()
         self.gravity = scene.effects["gravity"].g if "gravity" in scene.effects else 0.0
 
@@ -106,31 +112,60 @@ class Simulation:
     def positions(self) -> np.ndarray:
         return self.state_in.x.to_numpy().astype(np.float64)
 
-    def measure(self, frame: int) -> FrameMetrics:
-        """Metrics of the current state; raises ``UnstableError`` if it is not usable."""
-        x = self.positions()
-        v = self.state_in.v.to_numpy().astype(np.float64)
+    def state_problem(self, x: np.ndarray, v: np.ndarray) -> str | None:
+        """Why the state is not usable (non-finite, over-strained or too fast), or None."""
+        settings = self.scene.simulation
+        if not (np.isfinite(x).all() and np.isfinite(v).all()):
+            return "became non-finite"
+        strain = float(np.max(stretch_strain(self.model, x))) if self.model.stretch_count else 0.0
+        if strain > settings.blowup_strain:
+            return f"exploded (max strain {strain:.3g} > simulation.blowup_strain " \
+                   f"{settings.blowup_strain:g})"
+        speed = float(np.sqrt(np.max(np.sum(v * v, axis=1))))
+        if speed > settings.max_speed:
+            return f"exploded (a particle at {speed:.3g} m/s > simulation.max_speed " \
+                   f"{settings.max_speed:g})"
+        return None
+
+    def measure(self, frame: int, x: np.ndarray, v: np.ndarray) -> FrameMetrics:
+        """Metrics of a (checked) state x [m], v [m/s] at the end of ``frame``."""
         mass = self.model.host_mass
         strain = stretch_strain(self.model, x) if self.model.stretch_count else np.zeros(1)
-        finite = bool(np.isfinite(x).all() and np.isfinite(v).all())
-        max_strain = float(np.max(strain)) if finite else float("nan")
-        blowup = self.scene.simulation.blowup_strain
-        if not finite or max_strain > blowup:
-            what = "became non-finite" if not finite else \
-                f"exploded (max strain {max_strain:.3g} > simulation.blowup_strain {blowup:g})"
-            integrator = self.scene.simulation.integrator
-            advice = "lower simulation.dt or set it to \"auto\""
-            if integrator == "euler":
-                advice += "; explicit Euler also needs [effects.damping], or use \"symplectic\""
-            raise UnstableError(f"frame {frame}: the cloth {what} with integrator '{integrator}' "
-                                f"at dt = {self.time_step.dt:.6g} s; {advice}", frame)
         kinetic = 0.5 * float(np.sum(mass * np.sum(v * v, axis=1)))
         potential = self.gravity * float(np.sum(mass * x[:, 1])) + spring_energy(self.model, x)
         penetration = self.body_rig.max_penetration(x) if self.body_rig is not None else 0.0
         return FrameMetrics(
             frame=frame, t=self.frame_time(frame), kinetic_energy=kinetic,
-            potential_energy=potential, max_strain=max_strain, max_penetration=penetration,
+            potential_energy=potential, max_strain=float(np.max(strain)),
+            max_penetration=penetration,
             center_of_mass=[float(c) for c in np.sum(mass[:, None] * x, 0) / np.sum(mass)])
+
+    def guarded_frame(self, frame: int, record: "RunRecord") -> FrameMetrics:
+        """Advance ``frame`` and check it. A bad frame is rolled back and retried with the step
+        halved (the smaller step is kept for the rest of the run), up to
+        ``simulation.max_retries`` times; then ``UnstableError``. Nothing non-finite leaves."""
+        self.backup.copy_from(self.state_in)
+        for attempt in range(self.scene.simulation.max_retries + 1):
+            self.advance_frame(frame, record)
+            x = self.positions()
+            v = self.state_in.v.to_numpy().astype(np.float64)
+            problem = self.state_problem(x, v)
+            if problem is None:
+                return self.measure(frame, x, v)
+            if attempt == self.scene.simulation.max_retries:
+                break
+            record.retries += 1
+            self.state_in.copy_from(self.backup)
+            self.time_step = dataclasses.replace(
+                self.time_step, dt=self.time_step.dt / 2,
+                substeps_per_frame=2 * self.time_step.substeps_per_frame)
+        integrator = self.scene.simulation.integrator
+        advice = "lower simulation.dt or set it to \"auto\", or use integrator = \"implicit\""
+        if integrator == "euler":
+            advice += "; explicit Euler also needs [effects.damping]"
+        halvings = f" after {record.retries} halvings of the step" if record.retries else ""
+        raise UnstableError(f"frame {frame}: the cloth {problem} with integrator '{integrator}' "
+                            f"at dt = {self.time_step.dt:.6g} s{halvings}; {advice}", frame)
 
     def advance_frame(self, frame: int, record: "RunRecord") -> None:
         """The substeps of ``frame`` (t from frame/fps to (frame+1)/fps), the integrator's
@@ -143,7 +178,7 @@ class Simulation:
         done = 0
         while done < substeps:
             count = batch if substeps - done >= batch else 1
-            t = (frame * substeps + done) * dt
+            t = frame / self.scene.scene.fps + done * dt
             started = time.perf_counter()
             self.state_in, self.state_out = self.integrator.advance(
                 self.state_in, self.state_out, t, dt, count)
@@ -162,12 +197,25 @@ class Simulation:
         """Simulate ``frame_count`` frames; call ``on_frame(frame, metrics)`` after each."""
         record = RunRecord()
         for frame in range(frame_count):
-            self.advance_frame(frame, record)
-            metrics = self.measure(frame)
+            metrics = self.guarded_frame(frame, record)
+            if hasattr(self.integrator, "take_iterations"):
+                iterations = self.integrator.take_iterations()
+                record.cg_iterations.extend(iterations)
+                metrics.cg_iterations = float(np.mean(iterations))
             record.frames.append(metrics)
             if on_frame is not None:
                 on_frame(frame, metrics)
         return record
+
+    def _solver_report(self, record: RunRecord) -> dict:
+        """CG iterations per step of the implicit integrator (nothing for the explicit ones)."""
+        if not record.cg_iterations:
+            return {}
+        return {"cg": {"tolerance": self.scene.simulation.cg_tolerance,
+                       "max_iterations": self.scene.simulation.cg_max_iterations,
+                       "iterations_mean": float(np.mean(record.cg_iterations)),
+                       "iterations_max": int(np.max(record.cg_iterations)),
+                       "unconverged_steps": self.integrator.unconverged_steps}}
 
     def stats(self, record: RunRecord) -> dict:
         """The ``stats.json`` document (DESIGN.md, "Outputs")."""
@@ -177,6 +225,7 @@ class Simulation:
             "integrator": scene.simulation.integrator,
             "dt": self.time_step.dt,
             "substeps_per_frame": self.time_step.substeps_per_frame,
+            "retries": record.retries,
             "time_step": self.time_step.report(),
             "precision": scene.simulation.precision,
             "material": scene.material.name,
@@ -190,5 +239,6 @@ class Simulation:
             "max_strain": record.max_strain,
             "max_penetration": record.max_penetration,
             "wall_seconds": {k: round(v, 4) for k, v in record.wall_seconds.items()},
+            **self._solver_report(record),
             "per_frame": [f.as_dict() for f in record.frames],
         }

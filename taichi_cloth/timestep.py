@@ -6,6 +6,8 @@ along unit n contributes k·n·nᵀ blocks). Power iteration on M⁻¹K estimate
 (ω² ≤ max_i 2·Σ_{s∋i} k_s / m_i, ORACLES.md) bounds it from above. Penalty contact adds its
 stiffness per unit mass k̂ to ω². The step is then ``safety`` × the integrator's stability bound
 for all modes up to ω_max with the springs' Rayleigh damping (``integrators.stability``).
+Backward Euler is stable at any step, so its step is chosen for accuracy instead:
+``IMPLICIT_FRAME_FRACTION`` of a frame (1/60 s at 30 fps), the body's motion resolved.
 A frame is then split into a whole number of equal substeps not longer than that.
 """
 
@@ -16,6 +18,8 @@ import numpy as np
 
 from .errors import InputError
 from .integrators.stability import largest_stable_step
+
+IMPLICIT_FRAME_FRACTION = 0.5
 
 
 @dataclass(frozen=True)
@@ -73,6 +77,9 @@ def choose_time_step(requested, frame_time: float, integrator: str, positions, e
         return TimeStep(frame_time / substeps, substeps, requested)
     omega_spring = highest_frequency(positions, ends, stiffness, mass, free)
     omega_max = math.sqrt(omega_spring ** 2 + contact_stiffness)
+    if integrator == "implicit":
+        substeps = max(1, math.ceil(1.0 / IMPLICIT_FRAME_FRACTION - 1e-9))
+        return TimeStep(frame_time / substeps, substeps, "auto", omega_max, math.inf)
     stable = largest_stable_step(integrator, omega_max, damping_time)
     if stable <= 0.0:
         raise InputError(f"simulation.dt: \"auto\" finds no stable step for {integrator} "

@@ -70,6 +70,7 @@ def exact_displacement(t, amplitude, zeta):
     ("euler", 1, (200, 400, 800)),
     ("symplectic", 1, (200, 400, 800)),
     ("rk4", 4, (10, 20, 40)),
+    ("implicit", 1, (200, 400, 800)),
 ])
 def test_convergence_order_at_fixed_end_time(oscillators, name, order, steps, zeta):
     """Global error at T = 2 s falls as h^p (ORACLES.md); with dashpots on too, which catches an
@@ -113,3 +114,12 @@ def test_rayleigh_damped_cloth_is_limited_by_its_highest_mode():
     assert bound == pytest.approx(
         mode_step_limit("symplectic", omega_max, 0.5 * damping_time * omega_max), rel=1e-6)
     assert largest_stable_step("euler", omega_max, 0.0) == 0.0  # undamped: never stable
+
+
+def test_backward_euler_energy_decreases_every_step_even_at_huge_steps(oscillators):
+    """ORACLES.md: backward Euler's energy decreases every step, at any h; here ωh = 0.5 and 100."""
+    for y, steps in ((0.5, 50), (100.0, 5)):  # at ωh = 100, 1e-4 per step: 5 steps to 1e-20
+        ratios = energy_ratios(oscillators[("implicit", 0.0)], steps, y / OMEGA)
+        assert np.all(np.diff(np.concatenate([[1.0], ratios])) < 0)
+        assert np.all(np.isfinite(ratios))
+    assert ratios[0] == pytest.approx(1.0 / (1.0 + 100.0 ** 2), rel=1e-9)  # |1/(1 − iy)|²

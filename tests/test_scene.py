@@ -124,6 +124,7 @@ def test_cli_unstable_run_exits_3_without_writing_nan(tmp_path):
                      "--out", str(tmp_path))
     assert result.returncode == 3
     message = result.stderr.strip()
-    assert "frame" in message and "euler" in message and "dt = 0.00833333 s" in message
+    assert "frame 0" in message and "euler" in message and "after 4 halvings" in message
+    assert "dt = 0.000520833 s" in message  # 1/30 s / 4 substeps, halved 4 times
     assert "Traceback" not in result.stderr
     assert not (tmp_path / "stats.json").exists()

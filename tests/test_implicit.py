@@ -1,0 +1,177 @@
+"""Backward Euler's ingredients and the stability machinery: Jacobians by finite differences, an
+SPD system, CG convergence, dt = "auto" against a measured limit, and the blow-up guard."""
+
+import numpy as np
+import pytest
+import taichi as ti
+
+from taichi_cloth.commands import make_body_rig
+from taichi_cloth.contact import CapsuleContact
+from taichi_cloth.forces import Forces
+from taichi_cloth.garment import build_garment
+from taichi_cloth.kinematics import KinematicTrack
+from taichi_cloth.model import Model
+from taichi_cloth.scene import CollisionEffect, load_scene
+from taichi_cloth.simulation import Simulation
+
+
+class SheetWithBar:
+    """A strained 6×5 sheet (f64) crossed by a capsule, so springs are stretched and compressed
+    and some particles are inside the capsule."""
+
+    def __init__(self):
+        scene = load_scene("sheet", ("cloth.resolution=[6, 5]", "cloth.pin='none'",
+                                     "cloth.material.stretch_stiffness=300",
+                                     "cloth.material.shear_stiffness=40",
+                                     "cloth.material.bend_stiffness=0.01"))
+        garment = build_garment(scene.cloth, scene.material)
+        self.model = Model(garment, "f64", 1.0)  # with dashpots
+        track = KinematicTrack(2, 2, ti.f64)
+        track.hold(np.array([[-0.6, 1.3, 0.0], [0.6, 1.3, 0.0]]))
+        contact = CapsuleContact(CollisionEffect(stiffness=1e4, damping=0.3, friction=0.0,
+                                                 thickness=0.01), np.array([0.08]), track,
+                                 self.model)
+        self.forces = Forces(self.model, [contact])
+        self.state = self.model.state()
+        n = self.model.particle_count
+        self.force = ti.Vector.field(3, ti.f64, n)
+        self.u = ti.Vector.field(3, ti.f64, n)
+        self.stiffness_product = ti.Vector.field(3, ti.f64, n)
+        self.damping_product = ti.Vector.field(3, ti.f64, n)
+        rng = np.random.default_rng(4)
+        self.x = garment.positions + 0.03 * rng.standard_normal(garment.positions.shape)
+        self.rng = rng
+
+    def force_at(self, x, v):
+        self.state.x.from_numpy(x)
+        self.state.v.from_numpy(v)
+        self.forces.evaluate(self.state.x, self.state.v, 0.0, self.force)
+        return self.force.to_numpy()
+
+    def products(self, x, u, definite):
+        self.state.x.from_numpy(x)
+        self.state.v.fill(0.0)
+        self.u.from_numpy(u)
+        self.forces.evaluate_jacobian_products(self.state.x, self.state.v, self.u, 0.0, definite,
+                                               self.stiffness_product, self.damping_product)
+        return self.stiffness_product.to_numpy(), self.damping_product.to_numpy()
+
+
+@pytest.fixture(scope="module")
+def system():
+    return SheetWithBar()
+
+
+def test_the_configuration_has_compressed_springs_and_active_contacts(system):
+    ends, rest = system.model.host_spring_ends, system.model.host_rest_length
+    length = np.linalg.norm(system.x[ends[:, 1]] - system.x[ends[:, 0]], axis=1)
+    assert (length < rest).sum() > 10 and (length > rest).sum() > 10
+    inside = np.hypot(system.x[:, 1] - 1.3, system.x[:, 2]) < 0.09
+    assert inside.sum() >= 2
+
+
+def test_jacobian_products_equal_central_differences(system):
+    zero = np.zeros_like(system.x)
+    for _ in range(3):
+        u = system.rng.standard_normal(system.x.shape)
+        stiffness_u, damping_u = system.products(system.x, u, definite=False)
+        eps = 1e-6
+        numeric_stiffness = (system.force_at(system.x + eps * u, zero)
+                             - system.force_at(system.x - eps * u, zero)) / (2 * eps)
+        numeric_damping = (system.force_at(system.x, eps * u)
+                           - system.force_at(system.x, -eps * u)) / (2 * eps)
+        assert np.abs(stiffness_u).max() > 1.0 and np.abs(damping_u).max() > 1e-3
+        np.testing.assert_allclose(stiffness_u, numeric_stiffness,
+                                   atol=1e-6 * np.abs(stiffness_u).max())
+        np.testing.assert_allclose(damping_u, numeric_damping, atol=1e-6 * np.abs(damping_u).max())
+
+
+def test_the_solver_operator_is_symmetric_positive_definite(system):
+    """A = M − h·D − h²·K with the definite Jacobians, on random vectors."""
+    h = 1.0 / 60.0
+    mass = system.model.host_mass[:, None]
+
+    def apply(u):
+        stiffness_u, damping_u = system.products(system.x, u, definite=True)
+        return mass * u - h * damping_u - h * h * stiffness_u
+
+    exact_differs = False
+    for _ in range(5):
+        u, w = system.rng.standard_normal((2,) + system.x.shape)
+        au, aw = apply(u), apply(w)
+        assert np.sum(u * aw) == pytest.approx(np.sum(w * au), rel=1e-10)
+        assert np.sum(u * au) > 0
+        exact, _ = system.products(system.x, u, definite=False)
+        definite, _ = system.products(system.x, u, definite=True)
+        exact_differs |= not np.allclose(exact, definite)
+    assert exact_differs  # the fix for compressed springs and contact curvature did something
+
+
+@pytest.mark.parametrize("scene_name, overrides", [
+    ("sheet", ("cloth.resolution=[12, 12]",)),
+    ("hula", ()),
+])
+def test_conjugate_gradients_reach_their_tolerance_at_a_sixtieth_of_a_second(scene_name,
+                                                                            overrides):
+    scene = load_scene(scene_name, overrides + ("simulation.integrator=implicit",
+                                                "simulation.dt=0.016666667"))
+    simulation = Simulation(scene, make_body_rig(scene))
+    stats = simulation.stats(simulation.run(10))
+    assert stats["substeps_per_frame"] == 2
+    assert stats["cg"]["unconverged_steps"] == 0
+    assert 1 < stats["cg"]["iterations_mean"] < scene.simulation.cg_max_iterations
+
+
+def test_implicit_hula_at_one_step_per_frame_stays_finite_and_unstretched():
+    scene = load_scene("hula", ("simulation.integrator=implicit", "simulation.dt=0.034"))
+    simulation = Simulation(scene, make_body_rig(scene))
+    record = simulation.run(scene.frame_count)
+    assert simulation.time_step.substeps_per_frame == 1
+    assert record.retries == 0
+    assert record.max_strain < 0.10
+    assert record.max_penetration < 0.01
+
+
+def stays_stable(simulation, dt, steps=3000):
+    """Run ``steps`` symplectic substeps of dt from rest; stable if finite and unexploded."""
+    simulation.state_in.copy_from(simulation.backup)
+    done = 0
+    while done < steps:
+        simulation.state_in, simulation.state_out = simulation.integrator.advance(
+            simulation.state_in, simulation.state_out, done * dt, dt, 8)
+        done += 8
+    x = simulation.positions()
+    v = simulation.state_in.v.to_numpy()
+    return simulation.state_problem(x, v) is None
+
+
+def test_auto_step_is_stable_and_within_a_factor_two_of_the_measured_limit():
+    scene = load_scene("sheet", ("cloth.resolution=[8, 8]", "cloth.material=denim",
+                                 "simulation.integrator=symplectic", "effects.drag=false"))
+    simulation = Simulation(scene)
+    simulation.backup.copy_from(simulation.state_in)
+    chosen = simulation.time_step.dt
+    low, high = chosen, 8 * chosen
+    assert stays_stable(simulation, low)
+    assert not stays_stable(simulation, high)
+    for _ in range(12):  # bisection on the real kernels
+        middle = 0.5 * (low + high)
+        low, high = (middle, high) if stays_stable(simulation, middle) else (low, middle)
+    assert low / 2 <= chosen <= low
+    assert simulation.time_step.stable_dt == pytest.approx(low, rel=0.5)
+
+
+def test_guard_rolls_back_and_halves_the_step_instead_of_writing_nan():
+    """Symplectic Euler at 1.6× its stability limit: the guard retries with half steps and
+    the run finishes; nothing non-finite in the record."""
+    probe = Simulation(load_scene("sheet", ("cloth.resolution=[8, 8]",)))
+    too_big = 1.6 * probe.time_step.stable_dt
+    scene = load_scene("sheet", ("cloth.resolution=[8, 8]", f"simulation.dt={too_big}"))
+    simulation = Simulation(scene)
+    record = simulation.run(6)
+    assert record.retries >= 1
+    assert simulation.time_step.dt < too_big / 1.5
+    stats = simulation.stats(record)
+    assert stats["retries"] == record.retries and len(stats["per_frame"]) == 6
+    import json
+    json.dumps(stats, allow_nan=False)
