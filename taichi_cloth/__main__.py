@@ -1,6 +1,7 @@
 """Command line: ``python -m taichi_cloth COMMAND ...``. Parses arguments and dispatches."""
 
 import argparse
+import signal
 import sys
 
 from .errors import InputError, UnstableError
@@ -69,8 +70,14 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def stop_on_terminate(signum, frame):
+    """SIGTERM unwinds like Ctrl-C, so half-written outputs are removed (exit 128 + 15)."""
+    raise SystemExit(128 + signum)
+
+
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
+    signal.signal(signal.SIGTERM, stop_on_terminate)
     from . import commands
     try:
         if args.command == "simulate":
@@ -87,6 +94,9 @@ def main(argv=None) -> int:
     except (InputError, UnstableError) as error:
         sys.stderr.write(f"error: {error}\n")
         return error.exit_code
+    except KeyboardInterrupt:
+        sys.stderr.write("interrupted; the files written so far are whole\n")
+        return 130
     return 1
 
 

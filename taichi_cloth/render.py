@@ -77,18 +77,9 @@ class Renderer:
         """garment: the simulation's ``Garment``; body: a ``body.Body`` or None."""
         config = scene.render
         self.config = config
-        self.window = open_window(width, height)
-        self.canvas = self.window.get_canvas()
-        self.scene_3d = self.window.get_scene()
-        self.camera = ti.ui.Camera()
         position, lookat = np.array(config.camera_position), np.array(config.camera_lookat)
-        self.camera.position(*position)
-        self.camera.lookat(*lookat)
-        self.camera.up(0.0, 1.0, 0.0)
-        self.camera.fov(config.fov)
         key, fill = light_positions(position, lookat)
         self.lights = [(key, config.light), (fill, config.light * FILL_FRACTION)]
-
         self.cloth = ClothSurface(garment, config.subdivision)
         image_path = texture_path(scene)
         if image_path is None:
@@ -103,6 +94,15 @@ class Renderer:
             self.ground = GroundSurface(ground.height if ground is not None else 0.0)
             self.ground.shade(key, lambda normals, points: illumination(
                 normals, points, self.lights, config.ambient), config.background)
+
+        self.window = open_window(width, height)  # last: nothing after it can fail unclosed
+        self.canvas = self.window.get_canvas()
+        self.scene_3d = self.window.get_scene()
+        self.camera = ti.ui.Camera()
+        self.camera.position(*position)
+        self.camera.lookat(*lookat)
+        self.camera.up(0.0, 1.0, 0.0)
+        self.camera.fov(config.fov)
 
     def draw(self, positions, t: float) -> np.ndarray:
         """The frame with the cloth at ``positions`` (the simulation's x field) and the body at
