@@ -20,17 +20,20 @@ SAMPLES_PER_FRAME = 8
 
 
 class Bar:
-    """A static horizontal capsule along x (a towel bar), for draping: the ``Body`` interface
-    with one capsule, no display capsules and no motion. Lengths scale with ``scale``."""
+    """A static horizontal capsule along x, for draping: the ``Body`` interface with one capsule,
+    no display capsules and no motion. ``"bar"``: a towel bar (radius 4 cm, 1.2 m long);
+    ``"ball"``: a degenerate capsule of zero length (a sphere of radius 15 cm). Lengths scale
+    with ``scale``; the capsule's centre is at height ``waist_height``."""
 
     capsule_count = 1
     display_capsule_count = 0
 
-    def __init__(self, scale: float = 1.0):
-        self.capsule_radius = np.array([0.04 * scale])
+    def __init__(self, shape: str = "bar", scale: float = 1.0):
+        radius, self.half_length = {"bar": (0.04, 0.6), "ball": (0.15, 0.0)}[shape]
+        self.capsule_radius = np.array([radius * scale])
+        self.half_length *= scale
         self.display_capsule_radius = np.zeros(0)
         self.waist_height = 1.0 * scale
-        self.half_length = 0.6 * scale
 
     def pose(self, t: float) -> BodyPose:
         ends = np.array([[-self.half_length, self.waist_height, 0.0],
@@ -50,8 +53,8 @@ class BodyRig:
 
     def __init__(self, scene: Scene):
         config = scene.body
-        if config.capsules == "bar":
-            self.body = Bar(config.scale)
+        if config.capsules in ("bar", "ball"):
+            self.body = Bar(config.capsules, config.scale)
         else:
             self.body = Body(config.motion, config.tempo, config.amplitude, config.capsules,
                              config.scale, config.ease_in)

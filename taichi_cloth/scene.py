@@ -173,8 +173,8 @@ class BodyConfig:
     tempo: float = setting(90.0, "float", low=0.0, low_inclusive=False, high=400.0,
                            doc="beats per minute")
     amplitude: float = setting(1.0, "float", low=0.0, high=3.0, doc="scale of sway and circles")
-    capsules: str = setting("split", "str", choices=("split", "coarse", "bar"),
-                            doc="paper Fig. 4, Fig. 3, or one static horizontal bar (draping)")
+    capsules: str = setting("split", "str", choices=("split", "coarse", "bar", "ball"),
+                            doc="paper Fig. 4, Fig. 3, or one static bar or ball (draping)")
     scale: float = setting(1.0, "float", low=0.1, high=10.0, doc="body size relative to 1.6 m")
     ease_in: float = setting(1.0, "float", low=0.0, doc="seconds from rest to full motion")
 

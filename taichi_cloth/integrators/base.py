@@ -17,7 +17,7 @@ class Integrator:
     """Base of the integrators: subclasses define ``substep(state_in, state_out, t, dt)``."""
 
     name = ""
-    substep_batch = 8  # substeps per kernel launch; fewer where a substep is long (compile time)
+    substep_batch = 4  # substeps per kernel launch; fewer where a substep is long (compile time)
 
     def __init__(self, forces: Forces, post_step=None):
         """post_step: an object with a ``@ti.func apply(state, t)`` run after every substep."""
