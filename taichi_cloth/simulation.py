@@ -193,10 +193,13 @@ class Simulation:
         ti.sync()
         record.wall_seconds["simulate"] += time.perf_counter() - started
 
-    def run(self, frame_count: int, on_frame=None) -> RunRecord:
-        """Simulate ``frame_count`` frames; call ``on_frame(frame, metrics)`` after each."""
-        record = RunRecord()
-        for frame in range(frame_count):
+    def run(self, frame_count: int, on_frame=None, record: RunRecord | None = None,
+            first_frame: int = 0) -> RunRecord:
+        """Simulate frames ``first_frame`` … ``frame_count`` − 1 (the state must be that of
+        ``first_frame``'s start) into ``record`` (a new one if None: pass your own to keep what
+        was measured when a run is interrupted); call ``on_frame(frame, metrics)`` after each."""
+        record = RunRecord() if record is None else record
+        for frame in range(first_frame, frame_count):
             metrics = self.guarded_frame(frame, record)
             if hasattr(self.integrator, "take_iterations"):
                 iterations = self.integrator.take_iterations()
