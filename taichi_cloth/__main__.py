@@ -28,6 +28,8 @@ def add_scene_arguments(parser: argparse.ArgumentParser) -> None:
                         help="override a dotted scene key with a TOML value, e.g. "
                              "--set simulation.integrator=rk4 (repeatable)")
     parser.add_argument("--quiet", action="store_true", help="no progress or summary")
+    parser.add_argument("--resume", action="store_true",
+                        help="continue an interrupted run from the checkpoint in its output folder")
 
 
 def mesh_formats(text: str) -> tuple[str, ...]:
@@ -82,11 +84,12 @@ def main(argv=None) -> int:
     try:
         if args.command == "simulate":
             return commands.simulate(args.scene, args.overrides, args.frames, args.out,
-                                     args.arch, args.quiet, args.meshes, args.body_meshes)
+                                     args.arch, args.quiet, args.meshes, args.body_meshes,
+                                     args.resume)
         if args.command == "render":
             return commands.render(args.scene, args.overrides, args.frames, args.out, args.arch,
                                    args.quiet, args.width, args.height, args.video, args.meshes,
-                                   args.body_meshes)
+                                   args.body_meshes, args.resume)
         if args.command == "scenes":
             return commands.list_scenes()
         if args.command == "materials":

@@ -1,13 +1,19 @@
 """What each command-line command does; ``__main__`` only parses arguments and calls these."""
 
 import contextlib
+import dataclasses
+import json
 import os
+import sys
+import tempfile
 import time
 from pathlib import Path
 
-from .errors import InputError
+from .checkpoint import (Checkpoint, load_checkpoint, remove_checkpoint, save_checkpoint,
+                         scene_fingerprint)
+from .errors import InputError, UnstableError
 from .export import (MeshSeries, copy_file, remove_stale_frames, seam_split, video_writer,
-                     write_json, write_material, write_png)
+                     read_png, write_json, write_material, write_png)
 from .materials import PRESETS
 from .progress import Progress
 from .scene import Scene, load_scene, shipped_scene_names
@@ -38,14 +44,19 @@ def output_dir(scene: Scene, out: str | None) -> Path:
 
 
 def check_writable(directory: Path, flag: str) -> None:
-    """Fail early, before simulating, if ``directory`` cannot be created or written."""
+    """Fail early, before simulating, if ``directory`` cannot be created or written: the nearest
+    existing ancestor must be a folder in which a temporary folder can be made (and is removed
+    again, so nothing is left behind; permission bits alone say nothing for root)."""
     existing = directory
     while not existing.exists():
         existing = existing.parent
     if not existing.is_dir():
         raise InputError(f"{flag} {directory}: {existing} is not a folder")
-    if not os.access(existing, os.W_OK | os.X_OK):
-        raise InputError(f"{flag} {directory}: not writable")
+    try:
+        os.rmdir(tempfile.mkdtemp(prefix=".write-check-", dir=existing))
+    except OSError as error:
+        raise InputError(f"{flag} {directory}: cannot write in {existing} "
+                         f"({error.strerror})") from None
 
 
 def make_body_rig(scene: Scene):
@@ -92,12 +103,29 @@ def mesh_series(scene: Scene, simulation, directory: Path, formats, body_meshes:
 
 def run_scene(scene: Scene, frame_count: int, directory: Path, quiet: bool,
               size: tuple[int, int] | None = None, video: str = "", meshes=(),
-              body_meshes: bool = False) -> int:
+              body_meshes: bool = False, resume: bool = False) -> int:
     """Simulate ``frame_count`` frames; per frame render a PNG and a video frame (when ``size``
-    is given) and write meshes; then stats.json and a one-line summary."""
-    from .simulation import Simulation
+    is given) and write meshes; then stats.json and a one-line summary. An interrupted or
+    unstable run still leaves stats.json for the frames done (and, interrupted, a checkpoint that
+    ``resume`` continues from)."""
+    from .simulation import FrameMetrics, RunRecord, Simulation
     check_writable(directory, "--out")
     simulation = Simulation(scene, make_body_rig(scene))
+    record = RunRecord()
+    first_frame = 0
+    if resume:
+        if "xdmf" in meshes:
+            raise InputError("--resume: an XDMF series cannot be continued; run again without "
+                             "--resume, or without xdmf")
+        checkpoint = load_checkpoint(directory, scene)
+        first_frame = restore(simulation, checkpoint)
+        previous = json.loads((directory / "stats.json").read_text())["per_frame"]
+        record.frames = [FrameMetrics(**frame) for frame in previous[:first_frame]]
+        record.retries = checkpoint.retries
+        if first_frame >= frame_count:
+            raise InputError(f"--resume: frames 0–{first_frame - 1} are done already; ask for "
+                             f"more with --frames")
+    finished = {}  # the last whole frame: its index and host copies of its state
     with contextlib.ExitStack() as stack:
         renderer = append_video = None
         if size is not None:
@@ -107,8 +135,10 @@ def run_scene(scene: Scene, frame_count: int, directory: Path, quiet: bool,
             if video:
                 append_video = stack.enter_context(video_writer(
                     directory / f"{scene.name}.{video}", video, scene.scene.fps))
+                for frame in range(first_frame):
+                    append_video(read_png(directory / FRAME_DIR / f"frame_{frame:05d}.png"))
         series = mesh_series(scene, simulation, directory, meshes, body_meshes)
-        progress = stack.enter_context(Progress(scene.name, frame_count, quiet))
+        progress = stack.enter_context(Progress(scene.name, frame_count - first_frame, quiet))
         seconds = {"render": 0.0, "export": 0.0}
 
         def on_frame(frame, metrics):
@@ -124,9 +154,15 @@ def run_scene(scene: Scene, frame_count: int, directory: Path, quiet: bool,
                 mesh.append(frame, t, points(t))
             seconds["render"] += rendered - started
             seconds["export"] += time.perf_counter() - rendered
+            finished.update(frame=frame, positions=simulation.positions(),
+                            velocities=simulation.state_in.v.to_numpy())
             progress.update(t)
 
-        record = simulation.run(frame_count, on_frame)
+        try:
+            simulation.run(frame_count, on_frame, record, first_frame)
+        except (KeyboardInterrupt, SystemExit, UnstableError) as stop:
+            keep_partial_run(simulation, record, directory, finished, stop)
+            raise
         for mesh, _ in series:
             mesh.finish()
     if renderer is not None:
@@ -137,10 +173,45 @@ def run_scene(scene: Scene, frame_count: int, directory: Path, quiet: bool,
         for mesh, _ in series:
             remove_stale_frames(directory / MESH_DIR, mesh.name, frame_count)
     stats = simulation.stats(record)
+    if first_frame:
+        stats["resumed_at_frame"] = first_frame
     write_json(directory / "stats.json", stats)
+    remove_checkpoint(directory)
     if not quiet:
         print(summary(stats, directory))
     return 0
+
+
+def restore(simulation, checkpoint) -> int:
+    """Put the checkpoint's state and time step into ``simulation``; returns the next frame."""
+    real = simulation.model.numpy_real
+    simulation.state_in.x.from_numpy(checkpoint.positions.astype(real))
+    simulation.state_in.v.from_numpy(checkpoint.velocities.astype(real))
+    simulation.time_step = dataclasses.replace(simulation.time_step, dt=checkpoint.dt,
+                                               substeps_per_frame=checkpoint.substeps_per_frame)
+    return checkpoint.next_frame
+
+
+def keep_partial_run(simulation, record, directory: Path, finished: dict, stop) -> None:
+    """After a stop: stats.json for the whole frames done (marked ``stopped``) and, when
+    interrupted (not unstable), a checkpoint and how to resume on stderr."""
+    if not finished:
+        return
+    done = finished["frame"] + 1
+    record.frames = record.frames[:done]
+    stats = simulation.stats(record)
+    unstable = isinstance(stop, UnstableError)
+    stats["stopped"] = "unstable" if unstable else "interrupted"
+    write_json(directory / "stats.json", stats)
+    if unstable:
+        return
+    save_checkpoint(directory, Checkpoint(
+        next_frame=done, positions=finished["positions"], velocities=finished["velocities"],
+        dt=simulation.time_step.dt, substeps_per_frame=simulation.time_step.substeps_per_frame,
+        retries=record.retries, fingerprint=scene_fingerprint(simulation.scene)))
+    command = " ".join(["python -m taichi_cloth", *sys.argv[1:]])
+    sys.stderr.write(f"stopped after frame {done - 1}: frames 0–{done - 1} and stats.json are "
+                     f"in {directory}; to continue: {command} --resume\n")
 
 
 def summary(stats: dict, directory: Path) -> str:
@@ -153,17 +224,19 @@ def summary(stats: dict, directory: Path) -> str:
 
 
 def simulate(scene_name: str, overrides: list[str], frames: int | None, out: str | None,
-             arch: str | None, quiet: bool, meshes=None, body_meshes: bool = False) -> int:
+             arch: str | None, quiet: bool, meshes=None, body_meshes: bool = False,
+             resume: bool = False) -> int:
     """Physics only: run the scene and write stats.json (and meshes when asked)."""
     scene, frame_count = prepare_scene(scene_name, overrides, frames, arch)
     return run_scene(scene, frame_count, output_dir(scene, out), quiet,
                      meshes=scene.output.meshes if meshes is None else meshes,
-                     body_meshes=body_meshes or scene.output.body_meshes)
+                     body_meshes=body_meshes or scene.output.body_meshes, resume=resume)
 
 
 def render(scene_name: str, overrides: list[str], frames: int | None, out: str | None,
            arch: str | None, quiet: bool, width: int | None = None, height: int | None = None,
-           video: str | None = None, meshes=None, body_meshes: bool = False) -> int:
+           video: str | None = None, meshes=None, body_meshes: bool = False,
+           resume: bool = False) -> int:
     """Simulate and write PNG frames (headless GGUI), and a video and meshes when asked."""
     for value, flag in ((width, "--width"), (height, "--height")):
         if value is not None:
@@ -173,7 +246,7 @@ def render(scene_name: str, overrides: list[str], frames: int | None, out: str |
     return run_scene(scene, frame_count, output_dir(scene, out), quiet, size,
                      video=scene.output.video if video is None else video,
                      meshes=scene.output.meshes if meshes is None else meshes,
-                     body_meshes=body_meshes or scene.output.body_meshes)
+                     body_meshes=body_meshes or scene.output.body_meshes, resume=resume)
 
 
 def list_scenes() -> int:

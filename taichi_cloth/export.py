@@ -46,6 +46,11 @@ def write_json(target: Path, document: dict) -> None:
         temporary.write_text(text + "\n", encoding="utf-8")
 
 
+def read_png(path: Path) -> np.ndarray:
+    """An (H, W, 3) uint8 frame written by ``write_png``."""
+    return iio.imread(path)[..., :3]
+
+
 def write_png(target: Path, image: np.ndarray) -> None:
     """An (H, W, 3) uint8 image as a PNG, atomically."""
     with atomic_path(target, ".png") as temporary:

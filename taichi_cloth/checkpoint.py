@@ -1,0 +1,72 @@
+"""Stopping and resuming a run: the state at the end of the last finished frame, on disk.
+
+When a run is interrupted (Ctrl-C, SIGTERM) the command writes ``checkpoint.npz`` beside
+``stats.json``: positions and velocities after the last whole frame, the time step in force (the
+guard may have halved it), the retries so far and a fingerprint of the validated scene. ``--resume``
+loads it, refuses it if the scene (file or overrides) changed, and continues from the next frame.
+A finished run removes its checkpoint.
+"""
+
+import dataclasses
+import hashlib
+import io
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .errors import InputError
+from .export import atomic_path
+from .scene import Scene
+
+CHECKPOINT_NAME = "checkpoint.npz"
+
+
+def scene_fingerprint(scene: Scene) -> str:
+    """A hash of every validated setting (frozen dataclasses have a deterministic repr)."""
+    return hashlib.sha256(repr(scene).encode()).hexdigest()[:16]
+
+
+@dataclass(frozen=True)
+class Checkpoint:
+    """next_frame: the first frame still to simulate; positions [m] and velocities [m/s] (N, 3)
+    at its start; dt [s] and substeps_per_frame in force; retries so far."""
+
+    next_frame: int
+    positions: np.ndarray
+    velocities: np.ndarray
+    dt: float
+    substeps_per_frame: int
+    retries: int
+    fingerprint: str
+
+
+def save_checkpoint(directory: Path, checkpoint: Checkpoint) -> None:
+    buffer = io.BytesIO()
+    np.savez(buffer, **{field.name: getattr(checkpoint, field.name)
+                        for field in dataclasses.fields(checkpoint)})
+    with atomic_path(Path(directory) / CHECKPOINT_NAME) as temporary:
+        temporary.write_bytes(buffer.getvalue())
+
+
+def load_checkpoint(directory: Path, scene: Scene) -> Checkpoint:
+    """The checkpoint in ``directory`` for this very scene; InputError naming --resume if there
+    is none or it belongs to other settings."""
+    path = Path(directory) / CHECKPOINT_NAME
+    if not path.is_file():
+        raise InputError(f"--resume: no {CHECKPOINT_NAME} in {directory} (nothing was interrupted "
+                         f"there, or the run finished)")
+    with np.load(path) as data:
+        checkpoint = Checkpoint(
+            next_frame=int(data["next_frame"]), positions=data["positions"],
+            velocities=data["velocities"], dt=float(data["dt"]),
+            substeps_per_frame=int(data["substeps_per_frame"]), retries=int(data["retries"]),
+            fingerprint=str(data["fingerprint"]))
+    if checkpoint.fingerprint != scene_fingerprint(scene):
+        raise InputError(f"--resume: {path} was written for other scene settings; run the same "
+                         f"scene with the same --set options, or start again without --resume")
+    return checkpoint
+
+
+def remove_checkpoint(directory: Path) -> None:
+    (Path(directory) / CHECKPOINT_NAME).unlink(missing_ok=True)
