@@ -51,6 +51,35 @@ def add_mesh_arguments(parser: argparse.ArgumentParser) -> None:
                         help="also write the body's capsules as meshes")
 
 
+def add_compare_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("scene", metavar="SCENE",
+                        help="a scene name in scenes/ (e.g. sheet) or a path to a .toml file")
+    parser.add_argument("--integrators", metavar="LIST",
+                        help="comma list of euler,symplectic,rk4,implicit (default: all)")
+    parser.add_argument("--dts", metavar="LIST",
+                        help="comma list of time steps [s], each rounded down to divide the "
+                             "frame time (default: a geometric series spanning every "
+                             "integrator's stability limit)")
+    parser.add_argument("--duration", metavar="T",
+                        help="simulated seconds per run (default: the scene's, at most 1 s)")
+    parser.add_argument("--reference-dt", metavar="DT",
+                        help="step [s] of the RK4 double-precision reference (default: the "
+                             "smallest swept step / 8)")
+    parser.add_argument("--video-dt", metavar="DT",
+                        help="step [s] of the side-by-side video (default: the largest swept "
+                             "step at which every integrator stayed stable)")
+    parser.add_argument("--no-video", action="store_true",
+                        help="skip the side-by-side video and contact sheet (they need Vulkan)")
+    parser.add_argument("--out", help="output folder (default: output/compare/<scene>)")
+    parser.add_argument("--arch", choices=("cpu", "cuda", "vulkan", "gpu"),
+                        help="Taichi backend (default: the scene's simulation.arch)")
+    parser.add_argument("--set", dest="overrides", action="append", default=[],
+                        metavar="KEY=VALUE",
+                        help="override a dotted scene key with a TOML value (repeatable); "
+                             "runs are in f64 unless --set simulation.precision=f32")
+    parser.add_argument("--quiet", action="store_true", help="no progress or summary")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = ArgumentParser(prog="python -m taichi_cloth",
                             description="Mass-spring cloth on a dancing capsule body, in Taichi.")
@@ -67,6 +96,10 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("--video", choices=("mp4", "gif"),
                         help="also write <scene>.mp4 (H.264) or .gif at the scene's fps")
     add_mesh_arguments(render)
+    compare = commands.add_parser(
+        "compare", help="every integrator on one scene: error against a reference vs cost, "
+                        "table, CSV, plots, side-by-side video")
+    add_compare_arguments(compare)
     commands.add_parser("scenes", help="list the shipped scenes")
     commands.add_parser("materials", help="list the fabric presets")
     return parser
@@ -90,6 +123,11 @@ def main(argv=None) -> int:
             return commands.render(args.scene, args.overrides, args.frames, args.out, args.arch,
                                    args.quiet, args.width, args.height, args.video, args.meshes,
                                    args.body_meshes, args.resume)
+        if args.command == "compare":
+            from .compare import compare
+            return compare(args.scene, args.overrides, args.integrators, args.dts, args.duration,
+                           args.out, args.arch, args.quiet, args.reference_dt, args.video_dt,
+                           not args.no_video)
         if args.command == "scenes":
             return commands.list_scenes()
         if args.command == "materials":
