@@ -27,6 +27,9 @@ render: setup
 video: setup
 	$(PY) -m taichi_cloth render $(SCENE) --video mp4 $(ARGS)
 
+compare: setup
+	$(PY) -m taichi_cloth compare $(SCENE) $(ARGS)
+
 test: setup
 	$(PY) -m pytest -q tests
 
