@@ -6,6 +6,7 @@ leaves only whole files. JSON, PNG frames, videos (imageio with imageio-ffmpeg) 
 import io
 import json
 import os
+import re
 import shutil
 import tempfile
 import xml.etree.ElementTree as ET
@@ -142,11 +143,18 @@ def write_material(target: Path, name: str, color, texture: str = "") -> None:
         temporary.write_text(text, encoding="utf-8")
 
 
+PLY_TIMESTAMP = re.compile(rb"^(comment Created by meshio v[^,\n]*), [^\n]*\n", re.MULTILINE)
+
+
 def write_meshio(target: Path, points: np.ndarray, triangles: np.ndarray, file_format: str):
-    """A triangle mesh through meshio (``ply``: binary; ``vtu``: compressed XML), atomically."""
+    """A triangle mesh through meshio (``ply``: binary; ``vtu``: compressed XML), atomically.
+    meshio stamps a PLY header with the current time; the stamp is dropped so that identical
+    runs write identical files."""
     with atomic_path(target) as temporary:
         meshio.write(temporary, meshio.Mesh(points, [("triangle", triangles)]),
                      file_format=file_format)
+        if file_format == "ply":
+            temporary.write_bytes(PLY_TIMESTAMP.sub(rb"\1\n", temporary.read_bytes(), count=1))
 
 
 XINCLUDE_NAMESPACE = "http://www.w3.org/2001/XInclude"

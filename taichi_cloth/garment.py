@@ -26,7 +26,7 @@ class Garment:
     """Rest geometry and topology of one piece of cloth (all float arrays float64, SI units).
 
     positions (N,3) m; uvs (N,2) texture coordinates in [0,1]; triangles (T,3) particle indices,
-    counter-clockwise seen from outside (skirt) or from +z/+y (sheet); springs: family name →
+    counter-clockwise seen from outside (skirt) or from +z (vertical sheet); springs: family name →
     (S_f,2) particle indices; spring_stiffness: family → (S_f,) N/m; mass (N,) kg; pinned (N,) bool;
     columns, rows: grid shape; periodic: whether columns wrap around (skirt).
     """
@@ -85,7 +85,10 @@ def grid_triangles(columns: int, rows: int, periodic: bool) -> np.ndarray:
     bottom_left, bottom_right = left[1:], right[1:]
     first = np.stack([top_left, bottom_left, bottom_right], axis=-1).reshape(-1, 3)
     second = np.stack([top_left, bottom_right, top_right], axis=-1).reshape(-1, 3)
-    return np.concatenate([first, second]).astype(np.int32)
+    triangles = np.concatenate([first, second]).astype(np.int32)
+    # A skirt's rows run down and its columns counter-clockwise seen from above, which winds the
+    # sheet's triangles inwards on the cone: reverse them so that normals point outwards.
+    return triangles[:, [0, 2, 1]] if periodic else triangles
 
 
 def lumped_mass(positions: np.ndarray, triangles: np.ndarray, density: float) -> np.ndarray:
