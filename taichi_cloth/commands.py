@@ -217,8 +217,15 @@ def keep_partial_run(simulation, record, directory: Path, finished: dict, stop) 
 def summary(stats: dict, directory: Path) -> str:
     """One line: frames, integrator and dt, strain and penetration, seconds per phase, where."""
     seconds = ", ".join(f"{phase} {value:.2f} s" for phase, value in stats["wall_seconds"].items())
+    step = stats["time_step"]
+    auto = ""
+    if step["requested"] == "auto":
+        bound = "none" if step["stable_dt"] is None else f"{step['stable_dt']:.3g} s"
+        auto = f"auto: ω_max {step['omega_max']:.4g} rad/s, stability bound {bound}; "
+    retries = f", {stats['retries']} halvings" if stats["retries"] else ""
     return (f"{stats['scene']}: {stats['frames']} frames, {stats['integrator']} at dt = "
-            f"{stats['dt']:.6g} s ({stats['substeps_per_frame']} substeps/frame), max strain "
+            f"{stats['dt']:.6g} s ({auto}{stats['substeps_per_frame']} substeps/frame"
+            f"{retries}), max strain "
             f"{stats['max_strain']:.4f}, max penetration {stats['max_penetration'] * 1000:.2f} mm; "
             f"{seconds} → {directory}")
 

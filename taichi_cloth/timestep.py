@@ -24,7 +24,8 @@ IMPLICIT_FRAME_FRACTION = 0.5
 
 @dataclass(frozen=True)
 class TimeStep:
-    """dt [s] and substeps per frame; for ``auto`` also the estimate behind it."""
+    """dt [s] and substeps per frame; for ``auto`` also the estimate behind it: ω_max [rad/s] and
+    the integrator's stability bound [s] (None when it has none: backward Euler)."""
 
     dt: float
     substeps_per_frame: int
@@ -79,7 +80,7 @@ def choose_time_step(requested, frame_time: float, integrator: str, positions, e
     omega_max = math.sqrt(omega_spring ** 2 + contact_stiffness)
     if integrator == "implicit":
         substeps = max(1, math.ceil(1.0 / IMPLICIT_FRAME_FRACTION - 1e-9))
-        return TimeStep(frame_time / substeps, substeps, "auto", omega_max, math.inf)
+        return TimeStep(frame_time / substeps, substeps, "auto", omega_max, None)
     stable = largest_stable_step(integrator, omega_max, damping_time)
     if stable <= 0.0:
         raise InputError(f"simulation.dt: \"auto\" finds no stable step for {integrator} "

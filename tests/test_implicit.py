@@ -175,3 +175,15 @@ def test_guard_rolls_back_and_halves_the_step_instead_of_writing_nan():
     assert stats["retries"] == record.retries and len(stats["per_frame"]) == 6
     import json
     json.dumps(stats, allow_nan=False)
+
+
+def test_implicit_auto_step_is_half_a_frame_and_its_report_is_valid_json():
+    """Backward Euler has no stability bound: dt = "auto" takes half a frame, and the report
+    says so with a null bound (an infinite one once made stats.json unwritable)."""
+    import json
+    scene = load_scene("sheet", ("cloth.resolution=[6, 6]", "simulation.integrator=implicit"))
+    simulation = Simulation(scene)
+    stats = simulation.stats(simulation.run(1))
+    assert stats["substeps_per_frame"] == 2 and stats["dt"] == pytest.approx(1 / 60)
+    assert stats["time_step"]["stable_dt"] is None and stats["time_step"]["omega_max"] > 0
+    json.dumps(stats, allow_nan=False)
