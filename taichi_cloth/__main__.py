@@ -64,7 +64,7 @@ def add_compare_arguments(parser: argparse.ArgumentParser) -> None:
                         help="simulated seconds per run (default: the scene's, at most 1 s)")
     parser.add_argument("--reference-dt", metavar="DT",
                         help="step [s] of the RK4 double-precision reference (default: the "
-                             "smallest swept step / 8)")
+                             "smallest swept step / 4)")
     parser.add_argument("--video-dt", metavar="DT",
                         help="step [s] of the side-by-side video (default: the largest swept "
                              "step at which every integrator stayed stable)")
