@@ -43,19 +43,18 @@ from .commands import OUTPUT_ROOT, check_writable, make_body_rig
 from .errors import InputError, UnstableError
 from .export import atomic_path, write_json
 from .integrators import INTEGRATORS
-from .integrators.stability import largest_stable_step, mode_step_limit
 from .progress import Progress
 from .scene import load_scene
 from .simulation import RunRecord, Simulation
-from .timestep import IMPLICIT_FRAME_FRACTION, TimeStep, highest_frequency
+from .timestep import IMPLICIT_FRAME_FRACTION, TimeStep
 
 REFERENCE_INTEGRATOR = "rk4"
-REFERENCE_REFINEMENT = 8  # reference dt = smallest swept dt / this
+REFERENCE_REFINEMENT = 4  # reference dt = smallest swept dt / this (RK4: 256× more accurate)
 WARMUP_FRAMES = 2  # frames 0 and 1 launch every kernel variant a run uses
 DEFAULT_DURATION_CAP = 1.0  # s: default --duration is the scene's, at most this
 SWEEP_POINTS_MAX = 8  # default sweep: at most this many steps, spaced by a factor >= 2
 ORDER_FIT_POINTS = 3  # the order is fitted on this many smallest steps
-ROUNDOFF_FLOOR = 1000  # errors below this × machine epsilon × cloth size are round-off
+ROUNDOFF_FLOOR = 100  # errors below this × machine epsilon × cloth size are round-off
 EXPECTED_ORDERS = {"euler": 1, "symplectic": 1, "rk4": 4, "implicit": 1}  # ORACLES.md
 CSV_COLUMNS = ("integrator", "dt", "dt_requested", "substeps_per_frame", "stable",
                "blowup_time", "wall_seconds_per_sim_second", "compile_seconds", "error_rms",
@@ -106,38 +105,12 @@ def frame_time_step(dt: float, frame_time: float) -> TimeStep:
     return TimeStep(frame_time / substeps, substeps, dt)
 
 
-def stability_limits(simulation: Simulation, integrators) -> dict:
-    """Largest stable dt [s] per integrator from the linearised cloth at rest: ω_max (power
-    iteration, with the contact stiffness per unit mass added to ω²) and the springs' Rayleigh
-    damping time β (``integrators.stability``). Explicit Euler is stable only while h ≤ β for
-    every underdamped mode (ORACLES.md: ωh ≤ 2ζ with ζ = βω/2), and never without dashpots;
-    backward Euler always (inf)."""
-    scene, garment, model = simulation.scene, simulation.garment, simulation.model
-    omega_spring = highest_frequency(garment.positions, model.host_spring_ends,
-                                     model.host_stiffness, garment.mass, ~garment.pinned)
-    contact = max((getattr(config, "stiffness", 0.0) for name, config in scene.effects.items()
-                   if name in ("collision", "ground")), default=0.0)
-    omega = math.sqrt(omega_spring ** 2 + contact)
-    damping_time = garment.damping_time * scene.effects["damping"].scale \
-        if model.has_dashpots else 0.0
-    limits = {}
-    for name in integrators:
-        if name == "implicit":
-            limits[name] = math.inf
-        elif name == "euler":
-            limits[name] = min(damping_time, mode_step_limit(name, omega, 0.5 * damping_time
-                                                              * omega)) if damping_time else 0.0
-        else:
-            limits[name] = largest_stable_step(name, omega, damping_time)
-    return {"omega_max": omega, "damping_time": damping_time, "dt": limits}
-
-
 def default_dts(limits: dict, frame_time: float) -> tuple[float, ...]:
-    """A geometric series of steps [s], largest first, from twice the largest finite stability
-    limit (at least half a frame when backward Euler runs: its own default step) down to half the
-    smallest, spaced by a factor of 2 or more so that it has at most ``SWEEP_POINTS_MAX`` steps.
-    The series spans every explicit method's limit: each one's last stable and first unstable
-    steps are both in it."""
+    """A geometric series of steps [s], largest first, spanning every explicit integrator's
+    predicted stability limit (``limits``: integrator → step [s], inf for any, 0 for none): from
+    twice the largest finite limit (at least half a frame when backward Euler runs, its default
+    step; at most a frame) down to half the smallest or below, spaced by a factor of 2, or more
+    when that would take over ``SWEEP_POINTS_MAX`` steps."""
     finite = [h for h in limits.values() if 0.0 < h < math.inf]
     upper = 2.0 * max(finite) if finite else frame_time
     if "implicit" in limits:
@@ -146,9 +119,7 @@ def default_dts(limits: dict, frame_time: float) -> tuple[float, ...]:
     lower = min(0.5 * min(finite), upper) if finite else upper / 16.0
     span = upper / lower
     ratio = max(2.0, span ** (1.0 / (SWEEP_POINTS_MAX - 1)))
-    count = int(math.floor(math.log(span) / math.log(ratio) + 1e-9)) + 1
-    if upper / ratio ** (count - 1) > lower * (1 + 1e-9):
-        count += 1  # one more step so the smallest is at or below ``lower``
+    count = math.ceil(math.log(span) / math.log(ratio) - 1e-9) + 1
     return tuple(upper / ratio ** k for k in range(count))
 
 
@@ -178,25 +149,37 @@ class Run:
 
 class Runner:
     """The simulations of a comparison, one per (integrator, precision), each reused for every
-    dt: a run resets the state to rest and swaps in its step."""
+    dt: a run resets the state to rest and swaps in its step. Each is built with dt = "auto",
+    so the core's own step choice (``timestep``: ω_max, the springs' damping, the contacts)
+    predicts its integrator's stability limit."""
 
     def __init__(self, scene_name: str, overrides: tuple):
         """overrides: the scene's ``--set`` list (the precision default and duration included)."""
         self.scene_name = scene_name
         self.overrides = overrides
         self.simulations = {}  # (integrator, precision or "") → (Simulation, rest State)
+        self.limits = {}  # integrator → predicted largest stable step [s] (inf: any, 0: none)
+        self.omega_max = None  # the cloth's highest angular frequency [rad/s], contact included
+
+    def _build(self, extra: list[str]) -> Simulation:
+        scene = load_scene(self.scene_name, self.overrides + tuple(extra))
+        return Simulation(scene, make_body_rig(scene))
 
     def simulation(self, integrator: str, precision: str = "") -> tuple[Simulation, object]:
         """The simulation of ``integrator`` (``precision``: force "f64"/"f32", "" = scene's)."""
         key = (integrator, precision)
         if key not in self.simulations:
-            # dt is a placeholder: every run swaps in its own step.
-            extra = [f"simulation.integrator={integrator}", "simulation.dt=1.0",
-                     "simulation.max_retries=0"]
+            extra = [f"simulation.integrator={integrator}", "simulation.max_retries=0"]
             if precision:
                 extra.append(f"simulation.precision={precision}")
-            scene = load_scene(self.scene_name, self.overrides + tuple(extra))
-            simulation = Simulation(scene, make_body_rig(scene))
+            try:
+                simulation = self._build(extra + ["simulation.dt=auto"])
+                bound = simulation.time_step.stable_dt
+                self.limits.setdefault(integrator, math.inf if bound is None else bound)
+                self.omega_max = simulation.time_step.omega_max
+            except InputError:  # "auto" finds no stable step: explicit Euler without dashpots
+                simulation = self._build(extra + ["simulation.dt=1.0"])
+                self.limits.setdefault(integrator, 0.0)
             self.simulations[key] = (simulation, simulation.model.state())
         return self.simulations[key]
 
@@ -367,10 +350,12 @@ def compare(scene_name: str, overrides: list[str], integrators: str | None = Non
     check_writable(directory, "--out")
 
     runner = Runner(scene_name, tuple(extra))
-    simulation, _ = runner.simulation(names[0])
+    for name in names:  # each integrator's simulation, and its predicted stability limit
+        runner.simulation(name)
+    simulation = runner.simulation(names[0])[0]
     scene, frame_time = simulation.scene, 1.0 / simulation.scene.scene.fps
-    limits = stability_limits(simulation, names)
-    steps = unique_steps(requested_dts or default_dts(limits["dt"], frame_time), frame_time)
+    steps = unique_steps(requested_dts or default_dts({name: runner.limits[name] for name in names},
+                                                       frame_time), frame_time)
     reference_step = frame_time_step(reference_seconds or steps[-1].dt / REFERENCE_REFINEMENT,
                                      frame_time)
     extra_video = video and video_seconds is not None and \
@@ -404,9 +389,11 @@ def compare(scene_name: str, overrides: list[str], integrators: str | None = Non
                       "dt": reference_step.dt,
                       "substeps_per_frame": reference_step.substeps_per_frame},
         "error_floor": floor,
-        "stability": {"omega_max": limits["omega_max"], "damping_time": limits["damping_time"],
-                      "dt": {name: (h if math.isfinite(h) else None)
-                             for name, h in limits["dt"].items()}},
+        "stability": {"omega_max": runner.omega_max,
+                      "damping_time": simulation.garment.damping_time
+                      * scene.effects["damping"].scale if "damping" in scene.effects else 0.0,
+                      "dt": {name: (runner.limits[name] if math.isfinite(runner.limits[name])
+                                    else None) for name in names}},
         "orders": convergence_orders(rows, names, floor), "video_dt": shown.dt,
         "machine": machine_description(), "results": rows}
     write_csv(directory / "results.csv", rows)

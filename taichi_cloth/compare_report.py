@@ -59,7 +59,7 @@ def stability_sentence(summary: dict, name: str) -> str:
     unstable = [row for row in rows if not row["stable"]]
     limit = summary["stability"]["dt"][name]
     predicted = "no limit (unconditionally stable)" if limit is None else \
-        "no stable step (no damping)" if limit == 0 else f"{milliseconds(limit)}"
+        "no stable step" if limit == 0 else f"{milliseconds(limit)}"
     text = f"- **{INTEGRATOR_TITLES[name]}** (predicted limit: {predicted}): "
     if not unstable:
         return text + f"stable at every swept dt, up to {milliseconds(max(stable))}."
@@ -114,8 +114,9 @@ def report_text(summary: dict) -> str:
         f"- **Machine**: {machine['cpu']}, {machine['cores']} logical cores; Taichi "
         f"{machine['taichi']} on arch {machine['taichi_arch']}; Python {machine['python']}; "
         f"{machine['system']}.",
-        f"- **Cloth**: highest angular frequency ω_max = {stability['omega_max']:.4g} rad/s "
-        f"(contact included), Rayleigh damping time β = {stability['damping_time']:.3g} s.", "",
+        f"- **Cloth**: highest angular frequency ω_max = {number(stability['omega_max'], 4)} "
+        f"rad/s (contact included), Rayleigh damping time β = {stability['damping_time']:.3g} s "
+        f"(explicit Euler is stable only for dt ≤ β, ORACLES.md).", "",
         "## Reading", "",
         "Which integrator is cheapest for a given accuracy (the cheapest swept run whose RMS "
         "error is at most the target):", "",

@@ -82,7 +82,7 @@ def test_fitted_orders_from_the_error_column_match_oracles(sweep):
         assert summary["orders"][name]["order"] == pytest.approx(fit["order"])
     reference = summary["reference"]
     assert (reference["integrator"], reference["precision"]) == ("rk4", "f64")
-    assert reference["dt"] == pytest.approx(FRAME / SUBSTEPS[-1] / 8)
+    assert reference["dt"] == pytest.approx(FRAME / SUBSTEPS[-1] / 4)
 
 
 def test_plots_report_and_video_are_written(sweep):
