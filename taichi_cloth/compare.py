@@ -5,8 +5,9 @@
 - cost: wall-clock seconds of integrator substeps per simulated second. Every (integrator, dt)
   is first run for ``WARMUP_FRAMES`` frames, which compiles every kernel variant the run will
   launch (the two states swap after an odd substep count, and each order is its own Taichi
-  instantiation); the measured run after it compiles nothing. The per-frame guard and metrics
-  (host copies) are not part of the cost; JIT compilation is reported apart.
+  instantiation); the measured run after it compiles nothing, and a short one is repeated and
+  costs its fastest repeat. The per-frame guard and metrics (host copies) are not part of the
+  cost; JIT compilation is reported apart.
 - error against a reference trajectory (RK4 in double precision at ``REFERENCE_REFINEMENT``
   times smaller a step than the smallest swept one, or ``--reference-dt``): the positions of the
   free (unpinned) particles at every frame end; ``error_rms`` is the root mean square over
@@ -51,6 +52,8 @@ from .timestep import IMPLICIT_FRAME_FRACTION, TimeStep
 REFERENCE_INTEGRATOR = "rk4"
 REFERENCE_REFINEMENT = 4  # reference dt = smallest swept dt / this (RK4: 256× more accurate)
 WARMUP_FRAMES = 2  # frames 0 and 1 launch every kernel variant a run uses
+TIMING_REPEATS = 5  # a short run is timed up to this many times, the fastest counts
+TIMING_SECONDS = 0.2  # ... while its repeats total less than this [s] of substeps
 DEFAULT_DURATION_CAP = 1.0  # s: default --duration is the scene's, at most this
 SWEEP_POINTS_MAX = 8  # default sweep: at most this many steps, spaced by a factor >= 2
 ORDER_FIT_POINTS = 3  # the order is fitted on this many smallest steps
@@ -187,7 +190,10 @@ class Runner:
             measured: bool = True) -> Run:
         """The scene with ``integrator`` at ``time_step``. ``measured``: first a warm-up of
         ``WARMUP_FRAMES`` frames; its wall time less what those frames cost in the measured run
-        is the compilation time. A run that blows up is returned unstable (no cost), not raised."""
+        is the compilation time; a short run is repeated (up to ``TIMING_REPEATS`` runs while they
+        total under ``TIMING_SECONDS``) and costs its fastest, as timeit does, so that scheduler
+        noise does not decide which integrator is cheaper. A run that blows up is returned
+        unstable (no cost), not raised."""
         simulation, rest = self.simulation(integrator, precision)
         frame_count = simulation.scene.frame_count
         warmup = None
@@ -196,6 +202,11 @@ class Runner:
                                     min(WARMUP_FRAMES, frame_count))
         run = warmup if warmup is not None and not warmup.stable else \
             self._simulate(simulation, rest, integrator, time_step, frame_count, progress)
+        repeats, spent = 1, run.simulate_seconds
+        while measured and run.stable and repeats < TIMING_REPEATS and spent < TIMING_SECONDS:
+            again = self._simulate(simulation, rest, integrator, time_step, frame_count)
+            run.simulate_seconds = min(run.simulate_seconds, again.simulate_seconds)
+            repeats, spent = repeats + 1, spent + again.simulate_seconds
         skipped = frame_count if run is warmup else frame_count - len(run.times)
         for _ in range(skipped):  # the frames a blown-up run will not simulate
             progress.update(run.blowup_time)
@@ -388,7 +399,7 @@ def compare(scene_name: str, overrides: list[str], integrators: str | None = Non
         "reference": {"integrator": REFERENCE_INTEGRATOR, "precision": "f64",
                       "dt": reference_step.dt,
                       "substeps_per_frame": reference_step.substeps_per_frame},
-        "error_floor": floor,
+        "error_floor": floor, "timing": {"repeats": TIMING_REPEATS, "seconds": TIMING_SECONDS},
         "stability": {"omega_max": runner.omega_max,
                       "damping_time": simulation.garment.damping_time
                       * scene.effects["damping"].scale if "damping" in scene.effects else 0.0,

@@ -130,9 +130,11 @@ def report_text(summary: dict) -> str:
         "## Results", "",
         *results_table(summary), "",
         "- **cost**: wall-clock seconds of integrator substeps per simulated second, after a "
-        "warm-up that compiles every kernel variant; the per-frame guard and metrics are not "
-        "counted. **compile**: the JIT compilation the run needed (an integrator's first run "
-        "compiles most of it).",
+        f"warm-up that compiles every kernel variant; a short run is repeated (up to "
+        f"{summary['timing']['repeats']} runs while they total under "
+        f"{summary['timing']['seconds']:g} s) and costs its fastest; the per-frame guard and "
+        "metrics are not counted. **compile**: the JIT compilation the run needed (an "
+        "integrator's first run compiles most of it).",
         "- **RMS / max error**: distance of the free particles from the reference at every frame "
         "end, root mean square and largest.",
         "- **energy drift**: (E_end − E_ref,end) / max_t KE_ref, the energy (kinetic + gravity + "
