@@ -47,6 +47,8 @@ def milliseconds(dt: float) -> str:
 def plot_error_vs_cost(summary: dict, target: Path) -> None:
     figure = Figure(figsize=(7.5, 5.2))
     axes = figure.subplots()
+    axes.set_xscale("log")
+    axes.set_yscale("log")
     points = []
     for name in summary["integrators"]:
         color, marker = INTEGRATOR_STYLES[name]
@@ -57,7 +59,7 @@ def plot_error_vs_cost(summary: dict, target: Path) -> None:
             continue
         cost = [row["wall_seconds_per_sim_second"] for row in rows]
         error = [row["error_rms"] for row in rows]
-        axes.loglog(cost, error, marker=marker, color=color, label=INTEGRATOR_TITLES[name])
+        axes.plot(cost, error, marker=marker, color=color, label=INTEGRATOR_TITLES[name])
         for row, x, y in zip(rows, cost, error):
             axes.annotate(milliseconds(row["dt"]), (x, y), textcoords="offset points",
                           xytext=(4, 4), fontsize=7, color=color)
@@ -70,17 +72,21 @@ def plot_error_vs_cost(summary: dict, target: Path) -> None:
     if front:
         axes.step(*zip(*front), where="post", color="0.5", linestyle=":", linewidth=1.2,
                   label="Pareto front: cheapest for an accuracy")
+        axes.legend(fontsize=8)
+    else:
+        axes.text(0.5, 0.5, "no stable run", transform=axes.transAxes, ha="center")
     axes.set_xlabel("cost: wall-clock seconds per simulated second [s/s]")
     axes.set_ylabel("RMS position error against the reference [m]")
     axes.set_title(f"Error vs cost (labels: dt)\n{setting(summary)}", fontsize=10)
     axes.grid(True, which="both", alpha=0.3)
-    axes.legend(fontsize=8)
     save(figure, target)
 
 
 def plot_error_vs_dt(summary: dict, target: Path) -> None:
     figure = Figure(figsize=(7.5, 5.2))
     axes = figure.subplots()
+    axes.set_xscale("log")
+    axes.set_yscale("log")
     limits = summary["stability"]["dt"]
     for name in summary["integrators"]:
         color, marker = INTEGRATOR_STYLES[name]
@@ -92,13 +98,13 @@ def plot_error_vs_dt(summary: dict, target: Path) -> None:
         if rows:
             dts = np.array([row["dt"] for row in rows])
             error = np.array([row["error_rms"] for row in rows])
-            axes.loglog(dts, error, marker=marker, color=color, linestyle="none", label=label)
+            axes.plot(dts, error, marker=marker, color=color, linestyle="none", label=label)
         if order["order"] is not None:
             fit_dts = np.array(order["dts"])
             fit_errors = np.array([row["error_rms"] for row in rows if row["dt"] in order["dts"]])
             constant = np.exp(np.mean(np.log(fit_errors) - order["order"] * np.log(fit_dts)))
             line = np.geomspace(fit_dts.min() / 1.5, fit_dts.max() * 1.5, 20)
-            axes.loglog(line, constant * line ** order["order"], color=color, linestyle="--",
+            axes.plot(line, constant * line ** order["order"], color=color, linestyle="--",
                         linewidth=1)
         unstable = [row["dt"] for row in summary["results"]
                     if row["integrator"] == name and not row["stable"]]
@@ -107,10 +113,11 @@ def plot_error_vs_dt(summary: dict, target: Path) -> None:
                   transform=axes.get_xaxis_transform())
         if limits[name]:
             axes.axvline(limits[name], color=color, linestyle=":", linewidth=1)
-    low, high = axes.get_ylim()
-    axes.set_ylim(low, high * 30)  # room at the top for the unstable runs' markers
-    axes.plot([], [], marker="o", color="0.3", markerfacecolor="none", linestyle="none",
-              label="unstable runs (hollow, at the top)")
+    if not all(row["stable"] for row in summary["results"]):
+        low, high = axes.get_ylim()
+        axes.set_ylim(low, high * 30)  # room at the top for the unstable runs' markers
+        axes.plot([], [], marker="o", color="0.3", markerfacecolor="none", linestyle="none",
+                  label="unstable runs (hollow, at the top)")
     axes.plot([], [], color="0.3", linestyle=":", label="predicted stability limit")
     axes.plot([], [], color="0.3", linestyle="--", label="fitted error ∝ dtᵖ")
     axes.set_xlabel("time step dt [s]")
