@@ -161,10 +161,8 @@ def family_stiffness(positions: np.ndarray, springs: dict, material: Material, c
         horizontal = (a // columns) == (b // columns)
         if family == "stretch":
             stiffness[family] = np.where(horizontal, constants.stretch_x, constants.stretch_z)
-        elif family == "shear":
-            stiffness[family] = np.broadcast_to(constants.shear, a.shape).astype(float)
         else:
-            stiffness[family] = np.broadcast_to(constants.bend, a.shape).astype(float)
+            stiffness[family] = np.broadcast_to(getattr(constants, family), a.shape).astype(float)
     return stiffness
 
 

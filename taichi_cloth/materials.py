@@ -7,8 +7,8 @@ literature tabulates them, and converts them to SI continuum constants:
 - weight W [mg/cm²]                → areal density ρ = W · 0.01            [kg/m²]
 - tensile extension EMT [%] at the KES load of 500 gf/cm = 490.3 N/m
                                     → membrane stiffness k_m = 490.3 / (EMT/100)   [N/m]
-- shear rigidity G [gf/(cm·deg)]   → shear modulus G_si = G · 0.0980665/0.01 · 180/π  [N/m]
-- bending rigidity B [gf·cm²/cm]   → B_si = B · 0.0980665e-4 / 0.01 = B · 9.80665e-5 [N·m]
+- shear rigidity G [gf/(cm·deg)]   → shear modulus G_si = G · 0.00980665/0.01 · 180/π  [N/m]
+- bending rigidity B [gf·cm²/cm]   → B_si = B · 0.00980665·1e-4 / 0.01 = B · 9.80665e-5 [N·m]
 
 Typical values: Kawabata & Niwa, "Fabric performance in clothing and clothing manufacture"
 (J. Text. Inst. 80, 1989) and Inoue, Sen'i Gakkaishi 64(8), 2008 (the seed's ref. 5); each preset
@@ -20,12 +20,13 @@ a column), so that refining the grid keeps the cloth's behaviour:
 - stretch spring along x, length dx, stands for a strip of width dz:  k = k_m · dz / dx.
   On a square grid k = k_m whatever the spacing; the particle mass ρ·dx·dz shrinks with the cell,
   so the wave speed √(k_m/ρ) is resolution independent.
-- shear: the two diagonals of a square cell, each with k = G_si, give the cell the small-strain
-  shear modulus G_si (energy ½·G·γ² per unit area).
-- bend: skip-one springs of length 2h. Their energy ½·k·δ² with k = B_si / h² has the scaling of
-  the discrete quadratic bending energy (Bergou et al. 2006), so a refined grid is not stiffer;
-  a straight skip-one spring has no linear bending stiffness, so this is a stand-in for B, not an
-  exact discretisation of it.
+- shear: the two diagonals of a dx × dz cell, each with k = G_si·(dx² + dz²)/(2·dx·dz), give the
+  cell the small-strain shear modulus G_si (energy ½·G·γ² per unit area); k = G_si on a square.
+- bend: skip-one springs of length 2h, k = B_si / (dx·dz). This is a stand-in for B, not a
+  discretisation of it: a straight skip-one spring changes length only to second order in the
+  curvature κ, so its energy goes as κ⁴·h² and fades as the grid is refined (a sheet bent to a
+  fixed κ stores 1/4 of the energy at half the spacing). The springs mainly resist folding flat
+  and in-plane compression; a curvature-based bending energy is future work.
 - dashpots: stiffness-proportional (Rayleigh) damping, c = β · k [N·s/m] per spring, β [s] from the
   preset. A mode of angular frequency ω is damped with ratio ζ = β·ω/2, the same for every
   resolution.
@@ -101,13 +102,12 @@ PRESETS: dict[str, Material] = {
 
 @dataclass(frozen=True)
 class SpringConstants:
-    """Per-spring stiffness [N/m] of each family and the Rayleigh damping time β [s]."""
+    """Per-spring stiffness [N/m] of each family."""
 
     stretch_x: float
     stretch_z: float
     shear: float
     bend: float
-    damping_time: float
 
 
 def spring_constants(material: Material, spacing_x: float, spacing_z: float) -> SpringConstants:
@@ -115,7 +115,7 @@ def spring_constants(material: Material, spacing_x: float, spacing_z: float) -> 
     return SpringConstants(
         stretch_x=material.stretch_stiffness * spacing_z / spacing_x,
         stretch_z=material.stretch_stiffness * spacing_x / spacing_z,
-        shear=material.shear_stiffness,
+        shear=material.shear_stiffness * (spacing_x ** 2 + spacing_z ** 2)
+        / (2 * spacing_x * spacing_z),
         bend=material.bend_stiffness / (spacing_x * spacing_z),
-        damping_time=material.damping,
     )

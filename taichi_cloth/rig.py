@@ -59,6 +59,7 @@ class BodyRig:
             self.body = Body(config.motion, config.tempo, config.amplitude, config.capsules,
                              config.scale, config.ease_in)
         self.frame_time = 1.0 / scene.scene.fps
+        self.carries_pins = scene.cloth.pin == "waist"  # other pins stay where they are
         self.capsule_count = self.body.capsule_count
         self.waist_height = self.body.waist_height
         self.model = None
@@ -68,8 +69,8 @@ class BodyRig:
         self.pose_at_frame_end = self.body.pose(0.0)
 
     def attach(self, model: Model, declared_effects: dict) -> dict:
-        """Connect to the model (its pins follow the pelvis) and return the contact effect, if
-        the scene declares collision, as {"collision": CapsuleContact}."""
+        """Connect to the model (a skirt pinned at the waist follows the pelvis) and return the
+        contact effect, if the scene declares collision, as {"collision": CapsuleContact}."""
         self.model = model
         rest = self.body.pose(0.0)
         pinned = model.garment.positions[model.pinned_particles]
@@ -93,7 +94,7 @@ class BodyRig:
             np.stack([p.capsule_velocity_a, p.capsule_velocity_b], axis=1).reshape(-1, 3)
             for p in poses])
         self.capsule_track.upload(first_time, interval, capsule_positions, capsule_velocities)
-        if len(self.model.pinned_particles):
+        if self.carries_pins and len(self.model.pinned_particles):
             arms = np.stack([self.pin_local @ p.pelvis_rotation.T for p in poses])
             pin_positions = arms + np.stack([p.pelvis_position for p in poses])[:, None, :]
             pin_velocities = np.stack([p.pelvis_velocity + np.cross(p.pelvis_angular_velocity, arm)

@@ -86,25 +86,29 @@ def test_jacobian_products_equal_central_differences(system):
         np.testing.assert_allclose(damping_u, numeric_damping, atol=1e-6 * np.abs(damping_u).max())
 
 
-def test_the_solver_operator_is_symmetric_positive_definite(system):
-    """A = M − h·D − h²·K with the definite Jacobians, on random vectors."""
-    h = 1.0 / 60.0
+def assembled_operator(system, h, definite):
+    """A = M − h·D − h²·K as a dense matrix, one column per unit vector."""
+    n = system.model.particle_count
     mass = system.model.host_mass[:, None]
+    columns = []
+    for k in range(3 * n):
+        u = np.zeros((n, 3))
+        u.flat[k] = 1.0
+        stiffness_u, damping_u = system.products(system.x, u, definite)
+        columns.append((mass * u - h * damping_u - h * h * stiffness_u).ravel())
+    return np.array(columns).T
 
-    def apply(u):
-        stiffness_u, damping_u = system.products(system.x, u, definite=True)
-        return mass * u - h * damping_u - h * h * stiffness_u
 
-    exact_differs = False
-    for _ in range(5):
-        u, w = system.rng.standard_normal((2,) + system.x.shape)
-        au, aw = apply(u), apply(w)
-        assert np.sum(u * aw) == pytest.approx(np.sum(w * au), rel=1e-10)
-        assert np.sum(u * au) > 0
-        exact, _ = system.products(system.x, u, definite=False)
-        definite, _ = system.products(system.x, u, definite=True)
-        exact_differs |= not np.allclose(exact, definite)
-    assert exact_differs  # the fix for compressed springs and contact curvature did something
+def test_the_solver_operator_is_symmetric_positive_definite(system):
+    """With the definite Jacobians A is SPD (so CG applies); with the exact ones, the compressed
+    springs and the contact's curvature make it indefinite at the default step: the fix matters."""
+    h = 1.0 / 60.0
+    definite = assembled_operator(system, h, True)
+    exact = assembled_operator(system, h, False)
+    np.testing.assert_allclose(definite, definite.T, atol=1e-9 * np.abs(definite).max())
+    np.testing.assert_allclose(exact, exact.T, atol=1e-9 * np.abs(exact).max())
+    assert np.linalg.eigvalsh(definite).min() > 0
+    assert np.linalg.eigvalsh(exact).min() < 0
 
 
 @pytest.mark.parametrize("scene_name, overrides", [
