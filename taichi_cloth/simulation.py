@@ -91,15 +91,14 @@ class Simulation:
 
     def _choose_time_step(self) -> TimeStep:
         scene, garment, model = self.scene, self.garment, self.model
-        contact_stiffness = max((getattr(config, "stiffness", 0.0)
-                                 for name, config in scene.effects.items()
-                                 if name in ("collision", "ground")), default=0.0)
+        contact_modes = [(config.stiffness, config.damping) for name, config
+                         in scene.effects.items() if name in ("collision", "ground")]
         damping_time = garment.damping_time * scene.effects["damping"].scale \
             if model.has_dashpots else 0.0
         return choose_time_step(
             scene.simulation.dt, 1.0 / scene.scene.fps, scene.simulation.integrator,
             garment.positions, model.host_spring_ends, model.host_stiffness, garment.mass,
-            ~garment.pinned, damping_time, contact_stiffness, scene.simulation.safety)
+            ~garment.pinned, damping_time, contact_modes, scene.simulation.safety)
 
     @property
     def effect_names(self) -> list[str]:

@@ -4,7 +4,8 @@ The highest angular frequency ω_max of the linearised cloth at rest is the squa
 largest eigenvalue of M⁻¹K over the free particles, K the spring stiffness matrix (a spring at rest
 along unit n contributes k·n·nᵀ blocks). Power iteration on M⁻¹K estimates it; Gershgorin
 (ω² ≤ max_i 2·Σ_{s∋i} k_s / m_i, ORACLES.md) bounds it from above. Penalty contact adds its
-stiffness per unit mass k̂ to ω². The step is then ``safety`` × the integrator's stability bound
+stiffness per unit mass k̂ to ω², and its own modes (the normal spring with its damping ratio, and
+the friction damper) bound the step too. The step is then ``safety`` × the integrator's stability bound
 for all modes up to ω_max with the springs' Rayleigh damping (``integrators.stability``).
 Backward Euler is stable at any step, so its step is chosen for accuracy instead:
 ``IMPLICIT_FRAME_FRACTION`` of a frame (1/60 s at 30 fps), the body's motion resolved.
@@ -70,18 +71,19 @@ def highest_frequency(positions, ends, stiffness, mass, free, iterations: int = 
 
 
 def choose_time_step(requested, frame_time: float, integrator: str, positions, ends, stiffness,
-                     mass, free, damping_time: float, contact_stiffness: float,
-                     safety: float) -> TimeStep:
-    """The substep for a frame of ``frame_time`` [s]; ``requested`` is seconds or "auto"."""
+                     mass, free, damping_time: float, contact_modes, safety: float) -> TimeStep:
+    """The substep for a frame of ``frame_time`` [s]; ``requested`` is seconds or "auto".
+    contact_modes: (k̂ [1/s²], ζ) of each declared contact (collision, ground)."""
     if requested != "auto":
         substeps = max(1, math.ceil(frame_time / requested - 1e-9))
         return TimeStep(frame_time / substeps, substeps, requested)
     omega_spring = highest_frequency(positions, ends, stiffness, mass, free)
+    contact_stiffness = max((k for k, _ in contact_modes), default=0.0)
     omega_max = math.sqrt(omega_spring ** 2 + contact_stiffness)
     if integrator == "implicit":
         substeps = max(1, math.ceil(1.0 / IMPLICIT_FRAME_FRACTION - 1e-9))
         return TimeStep(frame_time / substeps, substeps, "auto", omega_max, None)
-    stable = largest_stable_step(integrator, omega_max, damping_time)
+    stable = largest_stable_step(integrator, omega_max, damping_time, contact_modes)
     if stable <= 0.0:
         raise InputError(f"simulation.dt: \"auto\" finds no stable step for {integrator} "
                          f"(explicit Euler needs [effects.damping]); give dt in seconds or "
