@@ -64,7 +64,7 @@ CSV_COLUMNS = ("integrator", "dt", "dt_requested", "substeps_per_frame", "stable
                "error_max", "energy_drift", "max_strain", "max_penetration")
 
 
-def parse_integrators(text: str | None) -> tuple[str, ...]:
+def integrator_names(text: str | None) -> tuple[str, ...]:
     """--integrators: a comma list of integrator names (default: all four)."""
     if text is None:
         return tuple(INTEGRATORS)
@@ -77,7 +77,7 @@ def parse_integrators(text: str | None) -> tuple[str, ...]:
     return names
 
 
-def parse_seconds(text: str | None, flag: str) -> tuple[float, ...]:
+def seconds_list(text: str | None, flag: str) -> tuple[float, ...]:
     """A comma list of positive, finite seconds for ``flag`` (--dts, --duration, ...)."""
     if text is None:
         return ()
@@ -93,9 +93,9 @@ def parse_seconds(text: str | None, flag: str) -> tuple[float, ...]:
     return tuple(values)
 
 
-def parse_one_second_value(text: str | None, flag: str) -> float | None:
+def seconds_value(text: str | None, flag: str) -> float | None:
     """One positive number of seconds for ``flag``, or None when the flag is absent."""
-    values = parse_seconds(text, flag)
+    values = seconds_list(text, flag)
     if len(values) > 1:
         raise InputError(f"{flag} {text}: expected one number of seconds")
     return values[0] if values else None
@@ -348,11 +348,11 @@ def compare(scene_name: str, overrides: list[str], integrators: str | None = Non
             video_dt: str | None = None, video: bool = True) -> int:
     """The ``compare`` command: sweep, reference, CSV, summary, plots, report and video."""
     from . import compare_plots, compare_report
-    names = parse_integrators(integrators)
-    requested_dts = parse_seconds(dts, "--dts")
-    seconds = parse_one_second_value(duration, "--duration")
-    reference_seconds = parse_one_second_value(reference_dt, "--reference-dt")
-    video_seconds = parse_one_second_value(video_dt, "--video-dt")
+    names = integrator_names(integrators)
+    requested_dts = seconds_list(dts, "--dts")
+    seconds = seconds_value(duration, "--duration")
+    reference_seconds = seconds_value(reference_dt, "--reference-dt")
+    video_seconds = seconds_value(video_dt, "--video-dt")
     extra = ["simulation.precision=f64", *overrides] + ([f"simulation.arch={arch}"] if arch else [])
     scene = load_scene(scene_name, tuple(extra))
     seconds = seconds or min(scene.scene.duration, DEFAULT_DURATION_CAP)
