@@ -16,18 +16,23 @@ class ArgumentParser(argparse.ArgumentParser):
         raise SystemExit(2)
 
 
+def add_common_arguments(parser: argparse.ArgumentParser, out_help: str, set_help: str) -> None:
+    """--out, --arch, --set and --quiet, shared by the commands that run a scene."""
+    parser.add_argument("--out", help=out_help)
+    parser.add_argument("--arch", choices=("cpu", "cuda", "vulkan", "gpu"),
+                        help="Taichi backend (default: the scene's simulation.arch)")
+    parser.add_argument("--set", dest="overrides", action="append", default=[],
+                        metavar="KEY=VALUE", help=set_help)
+    parser.add_argument("--quiet", action="store_true", help="no progress or summary")
+
+
 def add_scene_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("scene", metavar="SCENE",
                         help="a scene name in scenes/ (e.g. hula) or a path to a .toml file")
     parser.add_argument("--frames", type=int, help="number of frames (default: duration × fps)")
-    parser.add_argument("--out", help="output folder (default: output/<scene>)")
-    parser.add_argument("--arch", choices=("cpu", "cuda", "vulkan", "gpu"),
-                        help="Taichi backend (default: the scene's simulation.arch)")
-    parser.add_argument("--set", dest="overrides", action="append", default=[],
-                        metavar="KEY=VALUE",
-                        help="override a dotted scene key with a TOML value, e.g. "
-                             "--set simulation.integrator=rk4 (repeatable)")
-    parser.add_argument("--quiet", action="store_true", help="no progress or summary")
+    add_common_arguments(parser, "output folder (default: output/<scene>)",
+                         "override a dotted scene key with a TOML value, e.g. "
+                         "--set simulation.integrator=rk4 (repeatable)")
     parser.add_argument("--resume", action="store_true",
                         help="continue an interrupted run from the checkpoint in its output folder")
 
@@ -70,14 +75,9 @@ def add_compare_arguments(parser: argparse.ArgumentParser) -> None:
                              "step at which every integrator stayed stable)")
     parser.add_argument("--no-video", action="store_true",
                         help="skip the side-by-side video and contact sheet (they need Vulkan)")
-    parser.add_argument("--out", help="output folder (default: output/compare/<scene>)")
-    parser.add_argument("--arch", choices=("cpu", "cuda", "vulkan", "gpu"),
-                        help="Taichi backend (default: the scene's simulation.arch)")
-    parser.add_argument("--set", dest="overrides", action="append", default=[],
-                        metavar="KEY=VALUE",
-                        help="override a dotted scene key with a TOML value (repeatable); "
-                             "runs are in f64 unless --set simulation.precision=f32")
-    parser.add_argument("--quiet", action="store_true", help="no progress or summary")
+    add_common_arguments(parser, "output folder (default: output/compare/<scene>)",
+                         "override a dotted scene key with a TOML value (repeatable); runs are "
+                         "in f64 unless --set simulation.precision=f32")
 
 
 def build_parser() -> argparse.ArgumentParser:
