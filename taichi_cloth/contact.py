@@ -98,8 +98,9 @@ class CapsuleContact:
 
     Capsule c has endpoints ``track`` points 2c (a) and 2c + 1 (b) and radius
     ``capsule_radius[c]`` [m]; ``margin`` [m] is the cloth's thickness kept off the surface.
-    A particle first tests the capsule's bounding sphere (centre (a + b)/2, radius |b − a|/2 + r +
-    margin); only particles inside it pay for the exact closest-point test.
+    ``prepare`` poses the capsules once per force evaluation; a particle then first tests each
+    capsule's bounding sphere (centre (a + b)/2, radius |b − a|/2 + r + margin), and only
+    particles inside it pay for the exact closest-point test.
     """
 
     name = "collision"
@@ -113,16 +114,38 @@ class CapsuleContact:
         self.model = model
         self.capsule_radius = ti.field(model.real, self.capsule_count)
         self.capsule_radius.from_numpy(np.asarray(capsule_radius, dtype=track.numpy_real))
+        # The pose at the time of the last ``prepare`` [m, m/s]; the bounding sphere [m, m²].
+        self.capsule_a = ti.Vector.field(3, model.real, self.capsule_count)
+        self.capsule_b = ti.Vector.field(3, model.real, self.capsule_count)
+        self.capsule_velocity_a = ti.Vector.field(3, model.real, self.capsule_count)
+        self.capsule_velocity_b = ti.Vector.field(3, model.real, self.capsule_count)
+        self.capsule_center = ti.Vector.field(3, model.real, self.capsule_count)
+        self.capsule_reach_sq = ti.field(model.real, self.capsule_count)
 
     has_local_jacobian = True
 
     @ti.func
-    def probe(self, i_c, position, t):
-        """Capsule i_c at time t seen from ``position``: (depth inside radius + margin [m],
-        unit normal out of the capsule, distance to the axis [m], segment parameter s, unit
-        axis, surface velocity at the closest point [m/s])."""
-        a, velocity_a = self.track.at(2 * i_c, t)
-        b, velocity_b = self.track.at(2 * i_c + 1, t)
+    def prepare(self, t):
+        """Pose every capsule at time t [s] once, before the particle loops: endpoints a, b and
+        their velocities from the track (two Hermite evaluations per capsule instead of four per
+        particle and capsule), and the bounding sphere of ``near``."""
+        real = self.model.real
+        for i_c in range(self.capsule_count):
+            a, velocity_a = self.track.at(2 * i_c, t)
+            b, velocity_b = self.track.at(2 * i_c + 1, t)
+            self.capsule_a[i_c], self.capsule_b[i_c] = a, b
+            self.capsule_velocity_a[i_c], self.capsule_velocity_b[i_c] = velocity_a, velocity_b
+            self.capsule_center[i_c] = 0.5 * (a + b)
+            reach = 0.5 * (b - a).norm() + self.capsule_radius[i_c] + real(self.margin)
+            self.capsule_reach_sq[i_c] = reach * reach
+
+    @ti.func
+    def probe(self, i_c, position):
+        """Capsule i_c as ``prepare`` posed it, seen from ``position``: (depth inside radius +
+        margin [m], unit normal out of the capsule, distance to the axis [m], segment parameter
+        s, unit axis, surface velocity at the closest point [m/s])."""
+        a, b = self.capsule_a[i_c], self.capsule_b[i_c]
+        velocity_a, velocity_b = self.capsule_velocity_a[i_c], self.capsule_velocity_b[i_c]
         radius = self.capsule_radius[i_c] + self.model.real(self.margin)
         s = closest_on_segment(position, a, b)
         offset = position - (a + s * (b - a))
@@ -133,21 +156,18 @@ class CapsuleContact:
         return radius - distance, normal, distance, s, axis, surface_velocity
 
     @ti.func
-    def near(self, i_c, position, t):
+    def near(self, i_c, position):
         """Cheap bound: is ``position`` inside capsule i_c's bounding sphere (centre (a + b)/2,
         radius |b − a|/2 + r + margin)?"""
-        a, _ = self.track.at(2 * i_c, t)
-        b, _ = self.track.at(2 * i_c + 1, t)
-        reach = 0.5 * (b - a).norm() + self.capsule_radius[i_c] + self.model.real(self.margin)
-        return (position - 0.5 * (a + b)).norm_sqr() < reach * reach
+        return (position - self.capsule_center[i_c]).norm_sqr() < self.capsule_reach_sq[i_c]
 
     @ti.func
     def force(self, model, x, v, i_p, t):
         real = model.real
         f = ti.Vector.zero(real, 3)
         for i_c in range(self.capsule_count):
-            if self.near(i_c, x[i_p], t):
-                depth, normal, distance, _, _, surface_velocity = self.probe(i_c, x[i_p], t)
+            if self.near(i_c, x[i_p]):
+                depth, normal, distance, _, _, surface_velocity = self.probe(i_c, x[i_p])
                 if depth > 0 and distance > 0:
                     f += penalty_force(model.particle_mass[i_p], depth, normal,
                                        v[i_p] - surface_velocity, real(self.stiffness),
@@ -166,8 +186,8 @@ class CapsuleContact:
         mass = model.particle_mass[i_p]
         identity = ti.Matrix.identity(real, 3)
         for i_c in range(self.capsule_count):
-            if self.near(i_c, x[i_p], t):
-                depth, normal, distance, s, axis, surface_velocity = self.probe(i_c, x[i_p], t)
+            if self.near(i_c, x[i_p]):
+                depth, normal, distance, s, axis, surface_velocity = self.probe(i_c, x[i_p])
                 if depth > 0 and distance > 0:
                     outer = normal.outer_product(normal)
                     stiffness_block -= mass * real(self.stiffness) * outer
@@ -184,14 +204,15 @@ class CapsuleContact:
     @ti.func
     def apply(self, state, t):
         """The projection pass after a step (``penalty+projection``): a free particle still
-        inside a capsule moves to its surface (plus margin) and loses its inward velocity
-        relative to the surface."""
+        inside a capsule at time t moves to its surface (plus margin) and loses its inward
+        velocity relative to the surface."""
         model = self.model
         x, v = ti.static(state.x, state.v)
-        for i_p in x:
+        self.prepare(t)
+        for i_p in range(model.particle_count):
             if model.particle_inv_mass[i_p] > 0:
                 for i_c in range(self.capsule_count):
-                    depth, normal, distance, _, _, surface_velocity = self.probe(i_c, x[i_p], t)
+                    depth, normal, distance, _, _, surface_velocity = self.probe(i_c, x[i_p])
                     if depth > 0 and distance > 0:
                         x[i_p] += depth * normal
                         inward = (v[i_p] - surface_velocity).dot(normal)

@@ -4,7 +4,15 @@
 springs (seed §2.1: stretch, shear, bend), their dashpots (seed §2.3 f_damper), and the scene's
 declared effects unrolled with ``ti.static`` (gravity, drag, wind, contact). Integrators call it
 from inside their own kernels, at whatever state (stage) they need, so RK4 stages and the implicit
-solve see exactly the same forces.
+solve see exactly the same forces. Before it, in the same kernel, ``prepare`` runs the passes
+that serve every particle at once: the effects' per-time data (capsule poses) and, on a grid
+cloth, the spring pass.
+
+The grid spring pass (``model.GridStencil``) packs positions (and velocities, for dashpots) into
+groups of ``SIMD_LANES`` columns and evaluates every stencil slot for a whole group with vector
+arithmetic: the same formula, each particle still summing its own springs in slot order (a
+gather, no atomics), but LLVM turns the lanes into AVX-512 instructions. Other spring sets gather
+through the CSR lists one particle at a time.
 
 Spring i–j with rest length L, stiffness k, damping c, d = x_j − x_i, l = |d|, n = d / l:
     f_i = k (l − L) n + c ((v_j − v_i) · n) n,      f_j = −f_i.
@@ -25,8 +33,10 @@ import taichi as ti
 
 from .contact import GroundContact
 from .effects import Drag, Gravity, Wind
-from .model import Model
+from .model import SIMD_LANES, STENCIL_REACH, Model
 from .scene import EFFECT_TYPES
+
+PACKED_PARTICLE_MINIMUM = 1024  # below it the CSR gather is as fast and compiles in a blink
 
 EFFECT_CLASSES = {"gravity": Gravity, "drag": Drag, "wind": Wind, "ground": GroundContact}
 
@@ -46,19 +56,143 @@ def make_effects(declared: dict, extra: dict | None = None) -> list:
     return effects
 
 
+@ti.func
+def packed_lanes(packed_component: ti.template(), row, group, column_step: ti.template()):
+    """The SIMD_LANES values of packed columns group·SIMD_LANES + lane + column_step."""
+    groups = (packed_component[row, group - 1], packed_component[row, group],
+              packed_component[row, group + 1])
+    return ti.Vector([groups[(lane + column_step + SIMD_LANES) // SIMD_LANES]
+                      [(lane + column_step) % SIMD_LANES]
+                      for lane in ti.static(range(SIMD_LANES))])
+
+
+def group_spring_function(model: Model, packed_x: list, packed_v: list | None,
+                          spring_force_out):
+    """A ``ti.real_func`` (row, group) that writes the spring (and dashpot) force of the
+    SIMD_LANES particles of one packed group into ``spring_force_out``. Per slot, with
+    d = x_j − x_i and 1/l = 1/√(d·d):
+
+        f += [k·(1 − L/l) + c·((v_j − v_i)·d)/l²]·d,
+
+    the module docstring's formula with n = d/l; a slot off the grid (or a zero-length spring)
+    adds nothing. A real function is compiled once per kernel however many substeps and stages
+    call it (inlined, its thousands of lane operations made compiles take seconds per call)."""
+    grid, real = model.grid, model.real
+    has_dashpots = model.has_dashpots
+    lane_index = ti.Vector(list(range(SIMD_LANES)))
+
+    @ti.real_func
+    def group_springs(row: ti.i32, group: ti.i32):
+        column = (group - 1) * SIMD_LANES + lane_index
+        x_i = [packed_lanes(packed_x[c], row, group, 0) for c in ti.static(range(3))]
+        force = [ti.Vector.zero(real, SIMD_LANES) for _ in ti.static(range(3))]
+        for run in ti.static(grid.column_runs):
+            column_step, first_slot, slot_count = ti.static(run)
+            present_column = column >= 0  # every lane
+            if ti.static(not grid.periodic):
+                present_column = (column + column_step >= 0) & (column + column_step < grid.columns)
+            for s in range(first_slot, first_slot + slot_count):
+                neighbor_row = row + grid.slot_row_step[s]
+                if 0 <= neighbor_row < grid.rows:
+                    d = [packed_lanes(packed_x[c], neighbor_row, group, column_step) - x_i[c]
+                         for c in ti.static(range(3))]
+                    length_sq = d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
+                    inv_length = 1.0 / ti.sqrt(length_sq)
+                    magnitude = grid.stiffness[row, s] * (1.0 - grid.rest_length[row, s]
+                                                          * inv_length)
+                    if ti.static(has_dashpots):
+                        along = ti.Vector.zero(real, SIMD_LANES)
+                        for c in ti.static(range(3)):
+                            along += (packed_lanes(packed_v[c], neighbor_row, group, column_step)
+                                      - packed_lanes(packed_v[c], row, group, 0)) * d[c]
+                        magnitude += grid.damping[row, s] * along * inv_length * inv_length
+                    magnitude = ti.select(present_column & (length_sq > 0), magnitude, 0.0)
+                    for c in ti.static(range(3)):
+                        force[c] += magnitude * d[c]
+        for lane in ti.static(range(SIMD_LANES)):
+            if column[lane] < grid.columns:
+                spring_force_out[row * grid.columns + column[lane]] = ti.Vector(
+                    [force[0][lane], force[1][lane], force[2][lane]])
+
+    return group_springs
+
+
 @ti.data_oriented
 class Forces:
     """Springs, dashpots (when the model has them) and the listed effects."""
 
-    def __init__(self, model: Model, effects: list):
+    def __init__(self, model: Model, effects: list, packed_springs: bool = False):
+        """packed_springs: use the SIMD grid pass when the model is a grid of at least
+        ``PACKED_PARTICLE_MINIMUM`` particles (its compile takes seconds, more for every stage
+        that calls it, so the integrators with one evaluation per step ask for it)."""
         self.model = model
         self.effects = effects
+        self.has_grid = packed_springs and model.grid is not None \
+            and model.particle_count >= PACKED_PARTICLE_MINIMUM
+        if self.has_grid:
+            self.packed_x = model.grid.packed_fields(model.real)
+            self.packed_v = model.grid.packed_fields(model.real) if model.has_dashpots else None
+            self.grid_spring_force = ti.Vector.field(3, model.real, model.particle_count)
+            self.group_springs = group_spring_function(model, self.packed_x, self.packed_v,
+                                                       self.grid_spring_force)
 
     @property
     def compiled_names(self) -> list[str]:
         """What is compiled into the force evaluation, for ``stats.json``."""
         names = [e.name for e in self.effects] + (["damping"] if self.model.has_dashpots else [])
         return sorted(names, key=list(EFFECT_TYPES).index)
+
+    @ti.func
+    def prepare_effects(self, t):
+        """The effects' passes at time t [s] (capsule poses), before any particle loop."""
+        for e in ti.static(range(len(self.effects))):
+            if ti.static(hasattr(self.effects[e], "prepare")):
+                self.effects[e].prepare(t)
+
+    @ti.func
+    def prepare(self, x, v, t):
+        """Everything ``particle_force`` reads at (x, v, t) that serves all particles:
+        ``prepare_effects``, then on a grid cloth the packed spring pass."""
+        self.prepare_effects(t)
+        self.prepare_springs(x, v)
+
+    @ti.func
+    def prepare_springs(self, x, v):
+        """On a grid cloth, every particle's spring force into ``grid_spring_force``: pack
+        (x, v), then the SIMD stencil pass. Nothing otherwise (``particle_force`` gathers)."""
+        if ti.static(self.has_grid):
+            self._pack(x, self.packed_x)
+            if ti.static(self.model.has_dashpots):
+                self._pack(v, self.packed_v)
+            self._grid_springs()
+
+    @ti.func
+    def _pack(self, source, packed: ti.template()):
+        """source[i_p] into the packed groups (model.GridStencil), group by group. Halo lanes
+        hold the wrapped columns of a periodic grid, else the nearest edge column (finite
+        values that the spring pass masks out)."""
+        grid = self.model.grid
+        for row, group in ti.ndrange(grid.rows, grid.group_count):
+            values = [ti.Vector.zero(self.model.real, SIMD_LANES) for _ in ti.static(range(3))]
+            for lane in ti.static(range(SIMD_LANES)):
+                column = group * SIMD_LANES + lane - SIMD_LANES
+                if ti.static(grid.periodic):
+                    column = (column + grid.columns) % grid.columns
+                else:
+                    column = ti.min(ti.max(column, 0), grid.columns - 1)
+                position = source[row * grid.columns + column]
+                for c in ti.static(range(3)):
+                    values[c][lane] = position[c]
+            for c in ti.static(range(3)):
+                packed[c][row, group] = values[c]
+
+    @ti.func
+    def _grid_springs(self):
+        """Every group of every row through ``group_springs`` (one parallel loop)."""
+        grid = self.model.grid
+        last_group = (SIMD_LANES + grid.columns - 1) // SIMD_LANES
+        for row, group in ti.ndrange(grid.rows, (1, last_group + 1)):
+            self.group_springs(row, group)
 
     @ti.func
     def spring_force(self, x, v, i_p):
@@ -146,14 +280,20 @@ class Forces:
                                    t: ti.f64, definite: ti.template(),
                                    stiffness_out: ti.template(), damping_out: ti.template()):
         """(∂f/∂x)·u and (∂f/∂v)·u for every particle (for tests and diagnostics)."""
+        self.prepare_effects(t)
         for i_p in x:
             stiffness_out[i_p], damping_out[i_p] = self.jacobian_products(
                 x, v, u, i_p, ti.cast(t, self.model.real), definite)
 
     @ti.func
     def particle_force(self, x, v, i_p, t):
-        """Total force on particle i_p [N] at positions x, velocities v, time t [s]."""
-        f = self.spring_force(x, v, i_p)
+        """Total force on particle i_p [N] at positions x, velocities v, time t [s], after
+        ``prepare`` at the same (x, v, t) in the same kernel."""
+        f = ti.Vector.zero(self.model.real, 3)
+        if ti.static(self.has_grid):
+            f = self.grid_spring_force[i_p]
+        else:
+            f = self.spring_force(x, v, i_p)
         for k in ti.static(range(len(self.effects))):
             f += self.effects[k].force(self.model, x, v, i_p, t)
         return f
@@ -161,6 +301,7 @@ class Forces:
     @ti.kernel
     def evaluate(self, x: ti.template(), v: ti.template(), t: ti.f64, out: ti.template()):
         """Every particle's total force into ``out`` [N] (for tests and diagnostics)."""
+        self.prepare(x, v, t)
         for i_p in x:
             out[i_p] = self.particle_force(x, v, i_p, ti.cast(t, self.model.real))
 

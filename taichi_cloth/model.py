@@ -8,6 +8,11 @@ Forces are gathered, never scattered: every particle owns the list of its spring
 (``particle_spring_start``/``particle_spring``/``particle_neighbor``) and of its triangles, so a
 force is a sum in a fixed order and a run is bit-reproducible on the CPU (no atomic float adds).
 
+A cloth on a regular grid (every garment ``garment.py`` builds) also gets a ``GridStencil``: its
+springs are the same few neighbour offsets at every particle, with rest lengths and stiffnesses
+that depend only on the row, so the force pass reads positions as a stencil over a packed copy
+(``forces.py``) instead of through the gather lists.
+
 A pinned particle has inverse mass 0 and follows its prescribed motion: slot
 ``pin_slot[i]`` of ``pin_track`` (a ``KinematicTrack``), held at its rest position for a static
 pin and carried by the pelvis for a worn skirt.
@@ -48,6 +53,99 @@ def triangle_gather_lists(triangles: np.ndarray, particle_count: int):
     order = np.argsort(owner, kind="stable")
     start = np.searchsorted(owner[order], np.arange(particle_count + 1)).astype(np.int32)
     return start, triangle[order].astype(np.int32)
+
+
+SIMD_LANES = 16  # columns per packed group: one AVX-512 register of float32
+STENCIL_REACH = 2  # the farthest neighbour offset a stencil may have, rows or columns
+
+
+@ti.data_oriented
+class GridStencil:
+    """Springs of a grid cloth as a stencil: slot s of a particle in row r links it to the
+    particle ``slot_offsets[s]`` = (Δrow, Δcolumn) away (columns wrap when ``periodic``; slots
+    ordered by Δcolumn, then Δrow), with
+    rest length ``rest_length[r, s]`` [m], stiffness ``stiffness[r, s]`` [N/m] and damping
+    ``damping[r, s]`` [N·s/m]. A slot whose neighbour is off the grid has no spring.
+
+    Positions are packed for the SIMD pass as ``rows × group_count`` groups of ``SIMD_LANES``
+    columns, component by component; packed column p holds grid column p − SIMD_LANES (the first
+    group and the tail are halo: copies of the wrapped columns when periodic, unused otherwise).
+    """
+
+    def __init__(self, columns: int, rows: int, periodic: bool, slot_offsets: list,
+                 rest_length: np.ndarray, stiffness: np.ndarray, damping: np.ndarray, real):
+        self.columns, self.rows, self.periodic = columns, rows, periodic
+        self.slot_offsets = slot_offsets
+        self.slot_count = len(slot_offsets)
+        # (column step, first slot, slot count): slots sharing a column step are contiguous
+        column_steps = [offset[1] for offset in slot_offsets]
+        self.column_runs = [(step, column_steps.index(step), column_steps.count(step))
+                            for step in sorted(set(column_steps))]
+        self.slot_row_step = ti.field(ti.i32, self.slot_count)
+        self.slot_row_step.from_numpy(np.array([offset[0] for offset in slot_offsets], np.int32))
+        self.group_count = (SIMD_LANES + columns + STENCIL_REACH - 1) // SIMD_LANES + 1
+        numpy_real = np.float64 if real == ti.f64 else np.float32
+        self.rest_length = ti.field(real, (rows, self.slot_count))
+        self.stiffness = ti.field(real, (rows, self.slot_count))
+        self.damping = ti.field(real, (rows, self.slot_count))
+        for table, values in ((self.rest_length, rest_length), (self.stiffness, stiffness),
+                              (self.damping, damping)):
+            table.from_numpy(np.ascontiguousarray(values, dtype=numpy_real))
+
+    def packed_fields(self, real) -> list:
+        """Three fields (x, y, z) of SIMD_LANES-vectors indexed [row, group], so a group loads
+        as one vector."""
+        return [ti.Vector.field(SIMD_LANES, real, (self.rows, self.group_count))
+                for _ in range(3)]
+
+
+def grid_stencil(garment: Garment, ends: np.ndarray, rest_length: np.ndarray,
+                 stiffness: np.ndarray, damping: np.ndarray, real) -> GridStencil | None:
+    """The garment's springs as a ``GridStencil``, or None when they are not one: every spring
+    must join grid neighbours at most ``STENCIL_REACH`` apart, every in-grid slot must hold
+    exactly one spring, and rest length, stiffness and damping may depend on the row only
+    (relative spread ≤ 1e-9; the table keeps the row's first value)."""
+    columns, rows = garment.columns, garment.rows
+    if columns * rows != garment.particle_count or not len(ends) or columns < 2 * STENCIL_REACH + 1:
+        return None
+    row, column = np.divmod(ends, columns)
+    row_step = row[:, 1] - row[:, 0]
+    column_step = column[:, 1] - column[:, 0]
+    if garment.periodic:
+        column_step = (column_step + columns // 2) % columns - columns // 2
+    if np.max(np.abs(row_step)) > STENCIL_REACH or np.max(np.abs(column_step)) > STENCIL_REACH:
+        return None
+    # Both ends see the spring: from i at offset (Δr, Δc), from j at (−Δr, −Δc).
+    owner = np.concatenate([ends[:, 0], ends[:, 1]])
+    steps = np.concatenate([np.stack([row_step, column_step], 1),
+                            np.stack([-row_step, -column_step], 1)])
+    width = 2 * STENCIL_REACH + 1
+    code = (steps[:, 1] + STENCIL_REACH) * width + steps[:, 0] + STENCIL_REACH
+    codes, slot = np.unique(code, return_inverse=True)  # slots by column step, then row step
+    slot_offsets = [(int(c) % width - STENCIL_REACH, int(c) // width - STENCIL_REACH)
+                    for c in codes]
+    owner_row = owner // columns
+    if len(np.unique(owner * len(slot_offsets) + slot)) != len(owner):
+        return None  # two springs in one slot
+    expected = 0
+    for d_row, d_column in slot_offsets:
+        in_rows = np.count_nonzero((np.arange(rows) + d_row >= 0) & (np.arange(rows) + d_row < rows))
+        in_columns = columns if garment.periodic else np.count_nonzero(
+            (np.arange(columns) + d_column >= 0) & (np.arange(columns) + d_column < columns))
+        expected += in_rows * in_columns
+    if expected != len(owner):
+        return None  # an in-grid slot without its spring
+    key = owner_row * len(slot_offsets) + slot
+    present, first, entry = np.unique(key, return_index=True, return_inverse=True)
+    tables = []
+    for values in (rest_length, stiffness, damping):
+        both = np.concatenate([values, values])
+        if not np.allclose(both, both[first][entry], rtol=1e-9, atol=0.0):
+            return None
+        table = np.zeros(rows * len(slot_offsets))
+        table[present] = both[first]
+        tables.append(table.reshape(rows, len(slot_offsets)))
+    return GridStencil(columns, rows, garment.periodic, slot_offsets, *tables, real)
 
 
 @ti.data_oriented
@@ -118,14 +216,15 @@ class Model:
         self.spring_ends.from_numpy(ends)
         self.spring_rest_length.from_numpy(self._real(rest_length))
         self.spring_stiffness.from_numpy(self._real(stiffness))
-        self.spring_damping.from_numpy(
-            self._real((damping_scale or 0.0) * garment.damping_time * stiffness))
+        damping = (damping_scale or 0.0) * garment.damping_time * stiffness
+        self.spring_damping.from_numpy(self._real(damping))
         self.particle_spring_start.from_numpy(spring_start)
         self.particle_spring.from_numpy(spring_item)
         self.particle_neighbor.from_numpy(spring_other)
         self.triangles.from_numpy(garment.triangles)
         self.particle_triangle_start.from_numpy(triangle_start)
         self.particle_triangle.from_numpy(triangle_item)
+        self.grid = grid_stencil(garment, ends, rest_length, stiffness, damping, real)
         slot = np.full(n, -1, dtype=np.int32)
         slot[self.pinned_particles] = np.arange(len(self.pinned_particles), dtype=np.int32)
         self.pin_slot.from_numpy(slot)

@@ -18,7 +18,7 @@ import taichi as ti
 from .errors import UnstableError
 from .forces import Forces, make_effects, spring_energy, stretch_strain
 from .garment import build_garment
-from .integrators import make_integrator
+from .integrators import INTEGRATORS, make_integrator
 from .model import Model
 from .runtime import start_taichi
 from .scene import Scene
@@ -76,7 +76,8 @@ class Simulation:
                            damping.scale if damping is not None else None,
                            body_rig.sample_count if body_rig is not None else 2)
         extra = body_rig.attach(self.model, scene.effects) if body_rig is not None else {}
-        self.forces = Forces(self.model, make_effects(scene.effects, extra))
+        self.forces = Forces(self.model, make_effects(scene.effects, extra),
+                             INTEGRATORS[scene.simulation.integrator].packs_springs)
         collision = scene.effects.get("collision")
         projection = body_rig.contact if collision is not None and \
             collision.mode == "penalty+projection" else None
@@ -167,23 +168,22 @@ class Simulation:
                             f"at dt = {self.time_step.dt:.6g} s{halvings}; {advice}", frame)
 
     def advance_frame(self, frame: int, record: "RunRecord") -> None:
-        """The substeps of ``frame`` (t from frame/fps to (frame+1)/fps), the integrator's
-        ``substep_batch`` per kernel launch and the rest one by one. The first launch of each kernel variant compiles
+        """The substeps of ``frame`` (t from frame/fps to (frame+1)/fps), in the integrator's
+        launches (``Integrator.launch_counts``). The first launch of each kernel variant compiles
         it: its wall time goes to ``compile``, the rest to ``simulate``."""
         if self.body_rig is not None:
             self.body_rig.prepare_frame(frame)
         dt, substeps = self.time_step.dt, self.time_step.substeps_per_frame
-        batch = self.integrator.substep_batch
         done = 0
-        while done < substeps:
-            count = batch if substeps - done >= batch else 1
+        for count in self.integrator.launch_counts(substeps):
             t = frame / self.scene.scene.fps + done * dt
             started = time.perf_counter()
             self.state_in, self.state_out = self.integrator.advance(
                 self.state_in, self.state_out, t, dt, count)
-            if count not in self._compiled_batches:
+            variant = self.integrator.kernel_variant(count)
+            if variant not in self._compiled_batches:
                 ti.sync()
-                self._compiled_batches.add(count)
+                self._compiled_batches.add(variant)
                 record.wall_seconds["compile"] += time.perf_counter() - started
             else:
                 record.wall_seconds["simulate"] += time.perf_counter() - started

@@ -1,15 +1,25 @@
 """What every integrator shares: running substeps, several per kernel launch.
 
 A Python call of a Taichi kernel costs tens of microseconds, more than a small cloth's whole
-substep. An integrator therefore writes its substep as a ``@ti.func`` of top-level parallel loops,
-and ``_advance`` unrolls ``count`` of them in one kernel with ``ti.static`` (each unrolled loop
-stays a parallel loop), alternating the two states: substep k reads ``a`` and writes ``b`` when k
-is even, the reverse when odd. An optional ``post_step`` (the contact projection) runs after each.
+substep, and every parallel loop costs a hand-off to the thread pool and back. An integrator
+therefore writes its substep as a ``@ti.func`` of loops (``Forces.prepare``'s passes, then its
+particle updates) and runs many per launch, in one of two ways:
+
+- parallel (large cloth): ``_advance`` unrolls ``substep_batch`` substeps with ``ti.static``, each
+  loop a parallel loop over the particles;
+- serial (cloth of at most ``SERIAL_PARTICLE_LIMIT`` particles, where the hand-offs cost more
+  than a second core gains): ``_advance_serial`` runs a whole frame's substeps in one launch, a
+  serial loop over substeps around serial particle loops, on one thread.
+
+Substep k reads state ``a`` and writes ``b`` when k is even, the reverse when odd. An optional
+``post_step`` (the contact projection) runs after each substep.
 """
 
 import taichi as ti
 
 from ..forces import Forces
+
+SERIAL_PARTICLE_LIMIT = 2048  # measured with ``bench``: below it one thread beats two
 
 
 @ti.data_oriented
@@ -17,7 +27,8 @@ class Integrator:
     """Base of the integrators: subclasses define ``substep(state_in, state_out, t, dt)``."""
 
     name = ""
-    substep_batch = 4  # substeps per kernel launch; fewer where a substep is long (compile time)
+    packs_springs = False  # one force evaluation per substep: worth the SIMD spring pass
+    substep_batch = 2  # parallel substeps per kernel launch (each unrolled copy adds compile time)
 
     def __init__(self, forces: Forces, post_step=None):
         """post_step: an object with a ``@ti.func apply(state, t)`` run after every substep."""
@@ -25,21 +36,58 @@ class Integrator:
         self.model = forces.model
         self.post_step = post_step
         self.has_post_step = post_step is not None
+        self.serial = self.model.particle_count <= SERIAL_PARTICLE_LIMIT
+
+    def launch_counts(self, count: int) -> list[int]:
+        """Substeps per kernel launch for ``count`` substeps."""
+        if self.serial:
+            return [count]
+        batch = self.substep_batch
+        return [batch] * (count // batch) + [1] * (count % batch)
+
+    def kernel_variant(self, count: int):
+        """Which compiled kernel a launch of ``count`` substeps runs (the first launch of each
+        compiles it)."""
+        return "serial" if self.serial else count
 
     def step(self, state_in, state_out, t: float, dt: float) -> None:
         """One substep from state_in at time t [s] into state_out."""
-        self._advance(state_in, state_out, t, dt, 1)
+        self._launch(state_in, state_out, t, dt, 1)
 
     def advance(self, state_a, state_b, t: float, dt: float, count: int):
         """``count`` substeps from state_a at time t; returns (newest state, the other one)."""
-        self._advance(state_a, state_b, t, dt, count)
-        return (state_b, state_a) if count % 2 else (state_a, state_b)
+        done = 0
+        for launch in self.launch_counts(count):
+            self._launch(state_a, state_b, t + done * dt, dt, launch)
+            if launch % 2:
+                state_a, state_b = state_b, state_a
+            done += launch
+        return state_a, state_b
+
+    def _launch(self, a, b, t: float, dt: float, count: int) -> None:
+        if not self.serial:
+            self._advance(a, b, t, dt, count)
+        elif id(a) < id(b):  # one compiled kernel per pair of states, whichever is newest
+            self._advance_serial(a, b, t, dt, count, 0)
+        else:
+            self._advance_serial(b, a, t, dt, count, 1)
 
     @ti.kernel
     def _advance(self, a: ti.template(), b: ti.template(), t: ti.f64, dt: ti.f64,
                  count: ti.template()):
         for k in ti.static(range(count)):
             if ti.static(k % 2 == 0):
+                self._substep_and_post(a, b, t + k * dt, dt)
+            else:
+                self._substep_and_post(b, a, t + k * dt, dt)
+
+    @ti.kernel
+    def _advance_serial(self, a: ti.template(), b: ti.template(), t: ti.f64, dt: ti.f64,
+                        count: ti.i32, start_in_b: ti.i32):
+        """Substeps from a (start_in_b = 0) or from b (1), alternating."""
+        ti.loop_config(serialize=True)
+        for k in range(count):
+            if (k + start_in_b) % 2 == 0:
                 self._substep_and_post(a, b, t + k * dt, dt)
             else:
                 self._substep_and_post(b, a, t + k * dt, dt)

@@ -8,9 +8,9 @@ velocity moves the positions:
 
 (the seed's §2.5.2 listing prints v(t) in the position update, but its text says the position
 uses the *future* velocity: that is the symplectic method implemented here; cf. PositionBasedDynamics
-``TimeIntegration.h``). A step reads only ``state_in`` and writes only ``state_out``, so the force
-gather and the update fuse into one parallel loop. Pinned particles (inverse mass 0) take their
-pin target at t + h.
+``TimeIntegration.h``). A step reads only ``state_in`` and writes only ``state_out``, so after
+``Forces.prepare`` the force gather and the update fuse into one loop over the particles. Pinned
+particles (inverse mass 0) take their pin target at t + h.
 """
 
 import taichi as ti
@@ -23,6 +23,7 @@ class EulerStep(Integrator):
     """One force evaluation, then one update; ``uses_new_velocity`` picks the variant."""
 
     uses_new_velocity = False
+    packs_springs = True
 
     @ti.func
     def substep(self, state_in, state_out, t, dt):
@@ -30,7 +31,8 @@ class EulerStep(Integrator):
         x, v, x_out, v_out = ti.static(state_in.x, state_in.v, state_out.x, state_out.v)
         h = ti.cast(dt, model.real)
         time = ti.cast(t, model.real)
-        for i_p in x:
+        self.forces.prepare(x, v, t)
+        for i_p in range(model.particle_count):
             inv_mass = model.particle_inv_mass[i_p]
             if inv_mass == 0:
                 x_out[i_p], v_out[i_p] = model.pin_target(i_p, t + dt)

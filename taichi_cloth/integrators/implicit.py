@@ -140,6 +140,7 @@ class BackwardEuler(Integrator):
         candidate = self.candidate
         h = ti.cast(dt, model.real)
         time = ti.cast(t + dt, model.real)  # backward Euler: forces at the step's end time
+        forces.prepare(candidate.x, candidate.v, t + dt)
         for i_p in state.x:
             force = forces.particle_force(candidate.x, candidate.v, i_p, time)
             self.rhs[i_p] = h * force - model.particle_mass[i_p] * (candidate.v[i_p] - state.v[i_p])
@@ -166,6 +167,7 @@ class BackwardEuler(Integrator):
         forces = self.forces
         h = ti.cast(dt, model.real)
         time = ti.cast(t + dt, model.real)  # backward Euler: forces at the step's end time
+        forces.prepare_effects(t + dt)
         for i_p in state.x:
             stiffness_u, damping_u = forces.jacobian_products(state.x, state.v, u, i_p, time, True)
             self.product[i_p] = model.particle_mass[i_p] * u[i_p] - h * damping_u \

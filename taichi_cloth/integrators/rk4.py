@@ -12,8 +12,9 @@ Every stage evaluates *all* forces, dampers included, at the stage's own positio
 The seed's listing evaluates the damping −c·v(t) with the step's starting velocity in every stage,
 which drops the method to first order once damping is on; ORACLES.md's order test catches that.
 
-Each stage is one parallel loop: it gathers forces at the previous stage state, adds the stage's
-weighted slope to running sums, and writes the next stage state (two stage buffers alternate, as
+Each stage is ``Forces.prepare`` and one loop over the particles: it gathers forces at the
+previous stage state, adds the stage's weighted slope to running sums, and writes the next stage
+state (two stage buffers alternate, as
 threads still read the one being evaluated). Pinned particles take their pin target at t + h.
 """
 
@@ -26,7 +27,7 @@ from .base import Integrator
 @ti.data_oriented
 class RungeKutta4(Integrator):
     name = "rk4"
-    substep_batch = 1  # four parallel loops per substep already; unrolling only slows compiles
+    substep_batch = 1  # four stages per substep already; unrolling only slows compiles
 
     def __init__(self, forces, post_step=None):
         super().__init__(forces, post_step)
@@ -55,8 +56,10 @@ class RungeKutta4(Integrator):
         h = ti.cast(dt, model.real)
         w = model.real(weight)
         c = model.real(next_fraction)
-        time = ti.cast(t + ti.f64(stage_fraction) * dt, model.real)
-        for i_p in start.x:
+        stage_time = t + ti.f64(stage_fraction) * dt
+        time = ti.cast(stage_time, model.real)
+        self.forces.prepare(evaluated.x, evaluated.v, stage_time)
+        for i_p in range(model.particle_count):
             slope_x = evaluated.v[i_p]
             slope_v = model.particle_inv_mass[i_p] * self.forces.particle_force(
                 evaluated.x, evaluated.v, i_p, time)

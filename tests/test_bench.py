@@ -1,0 +1,103 @@
+"""The benchmark's NumPy step is an oracle for the Taichi force kernels and the symplectic step;
+``bench`` writes valid JSON. No timing is asserted here: the figures live in the benchmark."""
+
+import json
+
+import numpy as np
+import pytest
+
+from taichi_cloth.__main__ import main
+from taichi_cloth.bench import NumpyCloth, reference_cloth, reference_model
+from taichi_cloth.effects import Gravity
+from taichi_cloth.forces import PACKED_PARTICLE_MINIMUM, Forces
+from taichi_cloth.garment import build_garment
+from taichi_cloth.integrators import make_integrator
+from taichi_cloth.materials import PRESETS
+from taichi_cloth.model import Model
+from taichi_cloth.scene import ClothConfig, GravityEffect
+
+import taichi as ti
+
+G = GravityEffect().g
+
+
+def skirt_model(around: int, down: int) -> Model:
+    """A periodic grid (the skirt) with dashpots: the halo and the damping term."""
+    cloth = ClothConfig(shape="skirt", resolution=(around, down), pin="waist")
+    return Model(build_garment(cloth, PRESETS["silk"]), "f32", 1.0)
+
+
+@pytest.fixture(params=["reference", "skirt"])
+def model(request):
+    """Grids of at least PACKED_PARTICLE_MINIMUM particles, so the packed pass runs."""
+    if request.param == "reference":
+        return reference_model(33)
+    return skirt_model(64, 17)
+
+
+@pytest.mark.parametrize("packed", [True, False])
+def test_numpy_and_taichi_forces_agree(model, packed):
+    """Spring (+ dashpot) forces and gravity at a strained, moving state: the packed SIMD pass
+    and the CSR gather both match NumPy to float32 rounding."""
+    assert model.particle_count >= PACKED_PARTICLE_MINIMUM and model.grid is not None
+    forces = Forces(model, [Gravity(GravityEffect())], packed)
+    assert forces.has_grid == packed
+    rng = np.random.default_rng(3)
+    x = (model.garment.positions
+         + 0.002 * rng.standard_normal((model.particle_count, 3))).astype(np.float32)
+    v = (0.1 * rng.standard_normal((model.particle_count, 3))).astype(np.float32)
+    state = model.state()
+    state.x.from_numpy(x)
+    state.v.from_numpy(v)
+    out = ti.Vector.field(3, ti.f32, model.particle_count)
+    forces.evaluate(state.x, state.v, 0.0, out)
+    expected = NumpyCloth(model, G).forces(x.astype(np.float64), v.astype(np.float64))
+    scale = np.abs(expected).max()
+    assert scale > 1e-3  # the springs are strained
+    np.testing.assert_allclose(out.to_numpy(), expected, atol=2e-5 * scale)
+
+
+def test_numpy_and_taichi_positions_agree_after_substeps():
+    """The reference sheet after 200 symplectic substeps at 1/1920 s from rest: it starts to
+    swing down about its pinned edge (a smooth motion, so float32 rounding does not grow)."""
+    model = reference_model(40)
+    integrator = make_integrator("symplectic", Forces(model, [Gravity(GravityEffect())], True))
+    x = model.garment.positions.astype(np.float32)
+    v = np.zeros_like(x)
+    a, b = model.state(), model.state()
+    steps, dt = 200, 1.0 / 1920.0
+    newest, _ = integrator.advance(a, b, 0.0, dt, steps)
+    cloth = NumpyCloth(model, G)
+    for _ in range(steps):
+        x, v = cloth.step(x, v, dt)
+    moved = np.abs(x - model.garment.positions).max()
+    assert moved > 1e-3  # it swung
+    np.testing.assert_allclose(newest.x.to_numpy(), x, atol=1e-4 * moved)
+
+
+def test_reference_sheet_is_a_packed_grid():
+    cloth = reference_cloth(32)
+    assert cloth.resolution == (32, 32)
+    model = reference_model(32)
+    assert model.grid is not None and model.grid.slot_count == 12
+
+
+def test_bench_sizes_writes_valid_json(tmp_path, capsys):
+    target = tmp_path / "bench.json"
+    code = main(["bench", "--sizes", "16", "--integrators", "symplectic", "--seconds", "0.05",
+                 "--repeats", "2", "--quiet", "--json", str(target)])
+    assert code == 0
+    rows = json.loads(target.read_text())
+    reference = [r for r in rows if r["benchmark"] == "reference"]
+    assert {r["integrator"] for r in reference} == {"symplectic", "numpy-symplectic"}
+    for row in reference:
+        assert row["size"] == 16 and row["particles"] == 256
+        assert row["substeps_per_second"] > 0
+        assert row["particle_substeps_per_second"] == pytest.approx(
+            256 * row["substeps_per_second"])
+    assert "particle-substeps per second" in capsys.readouterr().out
+
+
+def test_bench_rejects_bad_sizes(capsys):
+    assert main(["bench", "--sizes", "3"]) == 2
+    assert "--sizes" in capsys.readouterr().err
