@@ -102,6 +102,24 @@ def build_parser() -> argparse.ArgumentParser:
     add_compare_arguments(compare)
     commands.add_parser("scenes", help="list the shipped scenes")
     commands.add_parser("materials", help="list the fabric presets")
+    bench = commands.add_parser(
+        "bench", help="substep throughput: the reference sheet per size and integrator, a NumPy "
+                      "baseline, each effect's cost and a whole scene's speed (docs/performance.md)")
+    bench.add_argument("--sizes", metavar="LIST",
+                       help="reference sheet sizes n (n × n particles), e.g. 32,64,128,256 "
+                            "(alone: only the sizes table)")
+    bench.add_argument("--integrators", metavar="LIST",
+                       help="comma list of integrators (default: symplectic,euler,rk4,implicit)")
+    bench.add_argument("--scene", help="scene for the effect costs and the whole-run speed "
+                                       "(default: hula; alone: only those parts)")
+    bench.add_argument("--json", metavar="FILE", help="also write the rows as JSON to FILE")
+    bench.add_argument("--seconds", type=float, default=1.0,
+                       help="minimum seconds per timed repeat (default 1)")
+    bench.add_argument("--repeats", type=int, default=3,
+                       help="timed repeats per figure, the median is reported (default 3)")
+    bench.add_argument("--arch", choices=("cpu", "cuda", "vulkan", "gpu"), default="cpu",
+                       help="Taichi backend (default cpu)")
+    bench.add_argument("--quiet", action="store_true", help="no progress lines")
     return parser
 
 
@@ -128,6 +146,10 @@ def main(argv=None) -> int:
             return compare(args.scene, args.overrides, args.integrators, args.dts, args.duration,
                            args.out, args.arch, args.quiet, args.reference_dt, args.video_dt,
                            not args.no_video)
+        if args.command == "bench":
+            from .bench import bench_command
+            return bench_command(args.sizes, args.integrators, args.scene, args.json,
+                                 args.seconds, args.repeats, args.arch, args.quiet)
         if args.command == "scenes":
             return commands.list_scenes()
         if args.command == "materials":
