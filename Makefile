@@ -30,6 +30,9 @@ video: setup
 compare: setup
 	$(PY) -m taichi_cloth compare $(SCENE) $(ARGS)
 
+bench: setup
+	$(PY) -m taichi_cloth bench $(ARGS)
+
 test: setup
 	$(PY) -m pytest -q tests
 
