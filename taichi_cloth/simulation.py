@@ -19,6 +19,7 @@ from .errors import UnstableError
 from .forces import Forces, make_effects, spring_energy, stretch_strain
 from .garment import build_garment
 from .integrators import INTEGRATORS, make_integrator
+from .integrators.implicit import SolverBreakdown
 from .model import Model
 from .runtime import start_taichi
 from .scene import Scene
@@ -146,10 +147,13 @@ class Simulation:
         ``simulation.max_retries`` times; then ``UnstableError``. Nothing non-finite leaves."""
         self.backup.copy_from(self.state_in)
         for attempt in range(self.scene.simulation.max_retries + 1):
-            self.advance_frame(frame, record)
-            x = self.positions()
-            v = self.state_in.v.to_numpy().astype(np.float64)
-            problem = self.state_problem(x, v)
+            try:
+                self.advance_frame(frame, record)
+                x = self.positions()
+                v = self.state_in.v.to_numpy().astype(np.float64)
+                problem = self.state_problem(x, v)
+            except SolverBreakdown as breakdown:
+                problem = f"could not be solved for ({breakdown})"
             if problem is None:
                 return self.measure(frame, x, v)
             if attempt == self.scene.simulation.max_retries:

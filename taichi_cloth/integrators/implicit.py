@@ -29,7 +29,12 @@ import taichi as ti
 from ..model import State
 from .base import Integrator
 
-DOT_BLOCK = 256  # particles per partial sum of a deterministic dot product
+DOT_BLOCK = 256
+
+
+class SolverBreakdown(ArithmeticError):
+    """CG met a non-finite residual or a direction of non-positive curvature: the step cannot be
+    trusted (the frame guard rolls it back and halves the step)."""  # particles per partial sum of a deterministic dot product
 
 
 @ti.data_oriented
@@ -86,11 +91,17 @@ class BackwardEuler(Integrator):
     def _solve(self, t: float, dt: float) -> int:
         """Preconditioned CG for A·δ = rhs on the free particles; returns its iterations."""
         rz = self._start_residual()
+        if not math.isfinite(rz):
+            raise SolverBreakdown(f"the right-hand side is not finite (r·z = {rz})")
         threshold = self.tolerance ** 2 * rz
         iterations = 0
         while rz > threshold and rz > 0 and iterations < self.max_iterations:
             self._apply(self.candidate, self.direction, t, dt)
-            alpha = rz / self._dot(self.direction, self.product)
+            curvature = self._dot(self.direction, self.product)
+            if not (math.isfinite(curvature) and curvature > 0 and math.isfinite(rz)):
+                raise SolverBreakdown(f"conjugate gradients broke down at iteration {iterations} "
+                                      f"(p·Ap = {curvature:.3g}, r·z = {rz:.3g})")
+            alpha = rz / curvature
             rz_new = self._update(alpha)
             self._new_direction(rz_new / rz)
             rz = rz_new

@@ -75,6 +75,10 @@ class RungeKutta4(Integrator):
                 else:
                     out.x[i_p] = start.x[i_p] + h * self.sum_x[i_p]
                     out.v[i_p] = start.v[i_p] + h * self.sum_v[i_p]
+            elif model.particle_inv_mass[i_p] == 0:
+                # the next stage sees a moving pin where it really is: a straight line from
+                # x_n made the neighbours' anchor O(h²) off and RK4 second order on a dancer
+                out.x[i_p], out.v[i_p] = model.pin_target(i_p, t + ti.f64(next_fraction) * dt)
             else:
                 out.x[i_p] = start.x[i_p] + c * h * slope_x
                 out.v[i_p] = start.v[i_p] + c * h * slope_v
