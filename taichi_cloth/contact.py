@@ -179,7 +179,9 @@ class CapsuleContact:
         """(∂f/∂x, ∂f/∂v) of the penalty on particle i_p:
         ∂f/∂x = m·k̂·[−n·nᵀ + (d/|x − y|)·P], P = I − n·nᵀ (− â·âᵀ on the cylinder part), friction
         left out; ∂f/∂v from ``penalty_damping_block``. The curvature term d/|x − y|·P is
-        positive; ``definite`` drops it."""
+        positive; ``definite`` drops it. A contact whose normal force is clamped to 0 (the
+        particle leaving fast) exerts nothing and adds nothing: its blocks would make release
+        sticky."""
         real = model.real
         stiffness_block = ti.Matrix.zero(real, 3, 3)
         damping_block = ti.Matrix.zero(real, 3, 3)
@@ -188,11 +190,14 @@ class CapsuleContact:
         for i_c in range(self.capsule_count):
             if self.near(i_c, x[i_p]):
                 depth, normal, distance, s, axis, surface_velocity = self.probe(i_c, x[i_p])
-                if depth > 0 and distance > 0:
+                relative_velocity = v[i_p] - surface_velocity
+                if depth > 0 and distance > 0 and normal_force_magnitude(
+                        mass, depth, relative_velocity.dot(normal), real(self.stiffness),
+                        real(self.damping_ratio)) > 0:
                     outer = normal.outer_product(normal)
                     stiffness_block -= mass * real(self.stiffness) * outer
                     damping_block += penalty_damping_block(
-                        mass, depth, normal, v[i_p] - surface_velocity, real(self.stiffness),
+                        mass, depth, normal, relative_velocity, real(self.stiffness),
                         real(self.damping_ratio), real(self.friction), real)
                     if ti.static(not definite):
                         tangent = identity - outer
@@ -247,13 +252,15 @@ class GroundContact:
     @ti.func
     def local_jacobian(self, model, x, v, i_p, t, definite: ti.template()):
         """(∂f/∂x, ∂f/∂v) of the penalty: −m·k̂·e_y·e_yᵀ (exact for a plane, so ``definite``
-        changes nothing) and ``penalty_damping_block``."""
+        changes nothing) and ``penalty_damping_block``; nothing while the normal force is
+        clamped to 0."""
         real = model.real
         stiffness_block = ti.Matrix.zero(real, 3, 3)
         damping_block = ti.Matrix.zero(real, 3, 3)
         depth = real(self.surface_height) - x[i_p][1]
-        if depth > 0:
-            mass = model.particle_mass[i_p]
+        mass = model.particle_mass[i_p]
+        if depth > 0 and normal_force_magnitude(mass, depth, v[i_p][1], real(self.stiffness),
+                                                real(self.damping_ratio)) > 0:
             stiffness_block[1, 1] = -mass * real(self.stiffness)
             damping_block = penalty_damping_block(
                 mass, depth, ti.Vector([0.0, 1.0, 0.0], dt=real), v[i_p], real(self.stiffness),
