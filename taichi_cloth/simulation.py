@@ -181,10 +181,10 @@ class Simulation:
         done = 0
         for count in self.integrator.launch_counts(substeps):
             t = frame / self.scene.scene.fps + done * dt
+            variant = self.integrator.kernel_variant(count, self.state_in, self.state_out)
             started = time.perf_counter()
             self.state_in, self.state_out = self.integrator.advance(
                 self.state_in, self.state_out, t, dt, count)
-            variant = self.integrator.kernel_variant(count)
             if variant not in self._compiled_batches:
                 ti.sync()
                 self._compiled_batches.add(variant)

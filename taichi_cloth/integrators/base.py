@@ -45,10 +45,11 @@ class Integrator:
         batch = self.substep_batch
         return [batch] * (count // batch) + [1] * (count % batch)
 
-    def kernel_variant(self, count: int):
-        """Which compiled kernel a launch of ``count`` substeps runs (the first launch of each
-        compiles it)."""
-        return "serial" if self.serial else count
+    def kernel_variant(self, count: int, state_a, state_b):
+        """Which compiled kernel a launch of ``count`` substeps from ``state_a`` runs (the first
+        launch of each compiles it). In parallel mode the states are template arguments, so each
+        order of the pair is a kernel of its own; the serial kernel orders them itself."""
+        return "serial" if self.serial else (count, id(state_a) < id(state_b))
 
     def step(self, state_in, state_out, t: float, dt: float) -> None:
         """One substep from state_in at time t [s] into state_out."""
