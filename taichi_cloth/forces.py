@@ -57,10 +57,11 @@ def make_effects(declared: dict, extra: dict | None = None) -> list:
 
 
 @ti.func
-def packed_lanes(packed_component: ti.template(), row, group, column_step: ti.template()):
+def packed_lanes(packed_component: ti.template(), buffer, row, group,
+                 column_step: ti.template()):
     """The SIMD_LANES values of packed columns group·SIMD_LANES + lane + column_step."""
-    groups = (packed_component[row, group - 1], packed_component[row, group],
-              packed_component[row, group + 1])
+    groups = (packed_component[buffer, row, group - 1], packed_component[buffer, row, group],
+              packed_component[buffer, row, group + 1])
     return ti.Vector([groups[(lane + column_step + SIMD_LANES) // SIMD_LANES]
                       [(lane + column_step) % SIMD_LANES]
                       for lane in ti.static(range(SIMD_LANES))])
@@ -68,8 +69,8 @@ def packed_lanes(packed_component: ti.template(), row, group, column_step: ti.te
 
 def group_spring_function(model: Model, packed_x: list, packed_v: list | None,
                           spring_force_out):
-    """A ``ti.real_func`` (row, group) that writes the spring (and dashpot) force of the
-    SIMD_LANES particles of one packed group into ``spring_force_out``. Per slot, with
+    """A ``ti.real_func`` (buffer, row, group) that writes the spring (and dashpot) force of the
+    SIMD_LANES particles of one packed group of packed copy ``buffer`` into ``spring_force_out``. Per slot, with
     d = x_j − x_i and 1/l = 1/√(d·d):
 
         f += [k·(1 − L/l) + c·((v_j − v_i)·d)/l²]·d,
@@ -82,9 +83,9 @@ def group_spring_function(model: Model, packed_x: list, packed_v: list | None,
     lane_index = ti.Vector(list(range(SIMD_LANES)))
 
     @ti.real_func
-    def group_springs(row: ti.i32, group: ti.i32):
+    def group_springs(buffer: ti.i32, row: ti.i32, group: ti.i32):
         column = (group - 1) * SIMD_LANES + lane_index
-        x_i = [packed_lanes(packed_x[c], row, group, 0) for c in ti.static(range(3))]
+        x_i = [packed_lanes(packed_x[c], buffer, row, group, 0) for c in ti.static(range(3))]
         force = [ti.Vector.zero(real, SIMD_LANES) for _ in ti.static(range(3))]
         for run in ti.static(grid.column_runs):
             column_step, first_slot, slot_count = ti.static(run)
@@ -94,7 +95,8 @@ def group_spring_function(model: Model, packed_x: list, packed_v: list | None,
             for s in range(first_slot, first_slot + slot_count):
                 neighbor_row = row + grid.slot_row_step[s]
                 if 0 <= neighbor_row < grid.rows:
-                    d = [packed_lanes(packed_x[c], neighbor_row, group, column_step) - x_i[c]
+                    d = [packed_lanes(packed_x[c], buffer, neighbor_row, group, column_step)
+                         - x_i[c]
                          for c in ti.static(range(3))]
                     length_sq = d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
                     inv_length = 1.0 / ti.sqrt(length_sq)
@@ -103,8 +105,9 @@ def group_spring_function(model: Model, packed_x: list, packed_v: list | None,
                     if ti.static(has_dashpots):
                         along = ti.Vector.zero(real, SIMD_LANES)
                         for c in ti.static(range(3)):
-                            along += (packed_lanes(packed_v[c], neighbor_row, group, column_step)
-                                      - packed_lanes(packed_v[c], row, group, 0)) * d[c]
+                            along += (packed_lanes(packed_v[c], buffer, neighbor_row, group,
+                                                   column_step)
+                                      - packed_lanes(packed_v[c], buffer, row, group, 0)) * d[c]
                         magnitude += grid.damping[row, s] * along * inv_length * inv_length
                     magnitude = ti.select(present_column & (length_sq > 0), magnitude, 0.0)
                     for c in ti.static(range(3)):
@@ -133,6 +136,16 @@ class Forces:
             self.packed_x = model.grid.packed_fields(model.real)
             self.packed_v = model.grid.packed_fields(model.real) if model.has_dashpots else None
             self.grid_spring_force = ti.Vector.field(3, model.real, model.particle_count)
+            columns = model.grid.columns
+            # (first, last + 1) of the packed groups that hold grid columns
+            self.filled_groups = (1, (2 * SIMD_LANES + columns - 1) // SIMD_LANES)
+            # groups with a wrapped column in a lane (periodic grid): the first, and from the
+            # first with a lane past the last column
+            self.last_own_group = columns // SIMD_LANES  # groups 1 … this hold own columns only
+            self.wrapping_groups = [0] + list(range(self.last_own_group + 1,
+                                                    model.grid.group_count))
+            self.wrapping_group = ti.field(ti.i32, len(self.wrapping_groups))
+            self.wrapping_group.from_numpy(np.array(self.wrapping_groups, np.int32))
             self.group_springs = group_spring_function(model, self.packed_x, self.packed_v,
                                                        self.grid_spring_force)
 
@@ -159,40 +172,50 @@ class Forces:
     @ti.func
     def prepare_springs(self, x, v):
         """On a grid cloth, every particle's spring force into ``grid_spring_force``: pack
-        (x, v), then the SIMD stencil pass. Nothing otherwise (``particle_force`` gathers)."""
+        (x, v) into packed copy 0, then the SIMD stencil pass. Nothing otherwise
+        (``particle_force`` gathers)."""
         if ti.static(self.has_grid):
-            self._pack(x, self.packed_x)
-            if ti.static(self.model.has_dashpots):
-                self._pack(v, self.packed_v)
-            self._grid_springs()
+            self.pack(x, v, 0)
+            grid = self.model.grid
+            for row, group in ti.ndrange(grid.rows, ti.static(self.filled_groups)):
+                self.group_springs(0, row, group)
 
     @ti.func
-    def _pack(self, source, packed: ti.template()):
-        """source[i_p] into the packed groups (model.GridStencil), group by group. Halo lanes
-        hold the wrapped columns of a periodic grid, else the nearest edge column (finite
-        values that the spring pass masks out)."""
+    def pack(self, x, v, buffer):
+        """x (and v, with dashpots) into packed copy ``buffer`` (model.GridStencil)."""
+        for row, group in ti.ndrange(self.model.grid.rows, self.model.grid.group_count):
+            self.pack_group(x, v, buffer, row, group)
+
+    @ti.func
+    def pack_halo(self, x, v, buffer):
+        """The groups of packed copy ``buffer`` that hold wrapped columns (periodic grid)."""
+        for row, k in ti.ndrange(self.model.grid.rows, ti.static(len(self.wrapping_groups))):
+            self.pack_group(x, v, buffer, row, self.wrapping_group[k])
+
+    @ti.func
+    def pack_group(self, x, v, buffer, row, group):
+        """One group of packed copy ``buffer`` from x (and v, with dashpots). Halo lanes hold
+        the wrapped columns of a periodic grid, else the nearest edge column (finite values
+        that the spring pass masks out)."""
+        self._pack_group(x, self.packed_x, buffer, row, group)
+        if ti.static(self.model.has_dashpots):
+            self._pack_group(v, self.packed_v, buffer, row, group)
+
+    @ti.func
+    def _pack_group(self, source, packed: ti.template(), buffer, row, group):
         grid = self.model.grid
-        for row, group in ti.ndrange(grid.rows, grid.group_count):
-            values = [ti.Vector.zero(self.model.real, SIMD_LANES) for _ in ti.static(range(3))]
-            for lane in ti.static(range(SIMD_LANES)):
-                column = group * SIMD_LANES + lane - SIMD_LANES
-                if ti.static(grid.periodic):
-                    column = (column + grid.columns) % grid.columns
-                else:
-                    column = ti.min(ti.max(column, 0), grid.columns - 1)
-                position = source[row * grid.columns + column]
-                for c in ti.static(range(3)):
-                    values[c][lane] = position[c]
+        values = [ti.Vector.zero(self.model.real, SIMD_LANES) for _ in ti.static(range(3))]
+        for lane in range(SIMD_LANES):  # a loop, not unrolled: each unrolled copy compiled slowly
+            column = group * SIMD_LANES + lane - SIMD_LANES
+            if ti.static(grid.periodic):
+                column = (column + grid.columns) % grid.columns
+            else:
+                column = ti.min(ti.max(column, 0), grid.columns - 1)
+            position = source[row * grid.columns + column]
             for c in ti.static(range(3)):
-                packed[c][row, group] = values[c]
-
-    @ti.func
-    def _grid_springs(self):
-        """Every group of every row through ``group_springs`` (one parallel loop)."""
-        grid = self.model.grid
-        last_group = (SIMD_LANES + grid.columns - 1) // SIMD_LANES
-        for row, group in ti.ndrange(grid.rows, (1, last_group + 1)):
-            self.group_springs(row, group)
+                values[c][lane] = position[c]
+        for c in ti.static(range(3)):
+            packed[c][buffer, row, group] = values[c]
 
     @ti.func
     def spring_force(self, x, v, i_p):

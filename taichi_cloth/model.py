@@ -57,6 +57,7 @@ def triangle_gather_lists(triangles: np.ndarray, particle_count: int):
 
 SIMD_LANES = 16  # columns per packed group: one AVX-512 register of float32
 STENCIL_REACH = 2  # the farthest neighbour offset a stencil may have, rows or columns
+PACKED_BUFFERS = 2  # packed copies of a state: the one a substep reads, the one it writes
 
 
 @ti.data_oriented
@@ -70,6 +71,8 @@ class GridStencil:
     Positions are packed for the SIMD pass as ``rows × group_count`` groups of ``SIMD_LANES``
     columns, component by component; packed column p holds grid column p − SIMD_LANES (the first
     group and the tail are halo: copies of the wrapped columns when periodic, unused otherwise).
+    There are ``PACKED_BUFFERS`` such copies, so a substep can read one while it writes the next
+    (``EulerStep``: the packed state is carried from substep to substep, never re-packed).
     """
 
     def __init__(self, columns: int, rows: int, periodic: bool, slot_offsets: list,
@@ -93,9 +96,9 @@ class GridStencil:
             table.from_numpy(np.ascontiguousarray(values, dtype=numpy_real))
 
     def packed_fields(self, real) -> list:
-        """Three fields (x, y, z) of SIMD_LANES-vectors indexed [row, group], so a group loads
-        as one vector."""
-        return [ti.Vector.field(SIMD_LANES, real, (self.rows, self.group_count))
+        """Three fields (x, y, z) of SIMD_LANES-vectors indexed [buffer, row, group], so a group
+        loads as one vector."""
+        return [ti.Vector.field(SIMD_LANES, real, (PACKED_BUFFERS, self.rows, self.group_count))
                 for _ in range(3)]
 
 

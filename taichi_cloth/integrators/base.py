@@ -11,8 +11,10 @@ particle updates) and runs many per launch, in one of two ways:
   than a second core gains): ``_advance_serial`` runs a whole frame's substeps in one launch, a
   serial loop over substeps around serial particle loops, on one thread.
 
-Substep k reads state ``a`` and writes ``b`` when k is even, the reverse when odd. An optional
-``post_step`` (the contact projection) runs after each substep.
+Substep k reads state ``a`` and writes ``b`` when k is even, the reverse when odd; it is also
+told ``k % 2``, the packed copy (``forces.pack``) that holds its input when the integrator carries
+a packed state from substep to substep, which ``begin_launch`` fills at the start of a launch.
+An optional ``post_step`` (the contact projection) runs after each substep.
 """
 
 import taichi as ti
@@ -24,7 +26,8 @@ SERIAL_PARTICLE_LIMIT = 2048  # measured with ``bench``: below it one thread bea
 
 @ti.data_oriented
 class Integrator:
-    """Base of the integrators: subclasses define ``substep(state_in, state_out, t, dt)``."""
+    """Base of the integrators: subclasses define ``substep(state_in, state_out, t, dt,
+    buffer)`` and may define ``begin_launch(state)``."""
 
     name = ""
     packs_springs = False  # one force evaluation per substep: worth the SIMD spring pass
@@ -76,25 +79,34 @@ class Integrator:
     @ti.kernel
     def _advance(self, a: ti.template(), b: ti.template(), t: ti.f64, dt: ti.f64,
                  count: ti.template()):
+        self.begin_launch(a)
         for k in ti.static(range(count)):
             if ti.static(k % 2 == 0):
-                self._substep_and_post(a, b, t + k * dt, dt)
+                self._substep_and_post(a, b, t + k * dt, dt, k % 2)
             else:
-                self._substep_and_post(b, a, t + k * dt, dt)
+                self._substep_and_post(b, a, t + k * dt, dt, k % 2)
 
     @ti.kernel
     def _advance_serial(self, a: ti.template(), b: ti.template(), t: ti.f64, dt: ti.f64,
                         count: ti.i32, start_in_b: ti.i32):
         """Substeps from a (start_in_b = 0) or from b (1), alternating."""
+        if start_in_b == 0:  # loops under a branch run serially
+            self.begin_launch(a)
+        else:
+            self.begin_launch(b)
         ti.loop_config(serialize=True)
         for k in range(count):
             if (k + start_in_b) % 2 == 0:
-                self._substep_and_post(a, b, t + k * dt, dt)
+                self._substep_and_post(a, b, t + k * dt, dt, k % 2)
             else:
-                self._substep_and_post(b, a, t + k * dt, dt)
+                self._substep_and_post(b, a, t + k * dt, dt, k % 2)
 
     @ti.func
-    def _substep_and_post(self, state_in, state_out, t, dt):
-        self.substep(state_in, state_out, t, dt)
+    def begin_launch(self, state):
+        """What a launch does once before its substeps, from its input state: nothing here."""
+
+    @ti.func
+    def _substep_and_post(self, state_in, state_out, t, dt, buffer):
+        self.substep(state_in, state_out, t, dt, buffer)
         if ti.static(self.has_post_step):
             self.post_step.apply(state_out, t + dt)

@@ -37,7 +37,7 @@ class RungeKutta4(Integrator):
         self.sum_v = ti.Vector.field(3, real, n)
 
     @ti.func
-    def substep(self, state_in, state_out, t, dt):
+    def substep(self, state_in, state_out, t, dt, buffer):
         first, second = ti.static(self.stage)
         # (state evaluated, fraction of h to its time, weight of its slope, fraction of h to the
         #  next stage state, which stage)
