@@ -26,6 +26,7 @@ class Gravity:
 
     def __init__(self, config: GravityEffect):
         self.g = config.g
+        self.uniform_acceleration = (0.0, -config.g, 0.0)  # the same for every particle [m/s²]
 
     @ti.func
     def force(self, model, x, v, i_p, t):

@@ -67,23 +67,25 @@ def packed_lanes(packed_component: ti.template(), buffer, row, group,
                       for lane in ti.static(range(SIMD_LANES))])
 
 
-def group_spring_function(model: Model, packed_x: list, packed_v: list | None,
-                          spring_force_out):
-    """A ``ti.real_func`` (buffer, row, group) that writes the spring (and dashpot) force of the
-    SIMD_LANES particles of one packed group of packed copy ``buffer`` into ``spring_force_out``. Per slot, with
-    d = x_j − x_i and 1/l = 1/√(d·d):
+def group_pass_function(model: Model, packed_x: list, packed_v: list, finish):
+    """A ``ti.real_func`` (buffer, row, group, h) that computes the spring (and dashpot) force on
+    the SIMD_LANES particles of one packed group of packed copy ``buffer`` as three
+    SIMD_LANES-vectors (x, y, z) and hands them to ``finish(buffer, row, group, h, f_x, f_y,
+    f_z)``, a ``ti.func`` (``Forces`` stores them per particle, ``EulerStep`` steps the lanes
+    with step h [s]). Per slot, with d = x_j − x_i and 1/l = 1/√(d·d):
 
         f += [k·(1 − L/l) + c·((v_j − v_i)·d)/l²]·d,
 
     the module docstring's formula with n = d/l; a slot off the grid (or a zero-length spring)
-    adds nothing. A real function is compiled once per kernel however many substeps and stages
-    call it (inlined, its thousands of lane operations made compiles take seconds per call)."""
+    adds nothing. Each lane sums its own slots in slot order (a gather). A real function is
+    compiled once per kernel however many substeps call it (inlined, its thousands of lane
+    operations made compiles take seconds per call)."""
     grid, real = model.grid, model.real
     has_dashpots = model.has_dashpots
     lane_index = ti.Vector(list(range(SIMD_LANES)))
 
     @ti.real_func
-    def group_springs(buffer: ti.i32, row: ti.i32, group: ti.i32):
+    def group_pass(buffer: ti.i32, row: ti.i32, group: ti.i32, h: real):
         column = (group - 1) * SIMD_LANES + lane_index
         x_i = [packed_lanes(packed_x[c], buffer, row, group, 0) for c in ti.static(range(3))]
         force = [ti.Vector.zero(real, SIMD_LANES) for _ in ti.static(range(3))]
@@ -112,12 +114,9 @@ def group_spring_function(model: Model, packed_x: list, packed_v: list | None,
                     magnitude = ti.select(present_column & (length_sq > 0), magnitude, 0.0)
                     for c in ti.static(range(3)):
                         force[c] += magnitude * d[c]
-        for lane in ti.static(range(SIMD_LANES)):
-            if column[lane] < grid.columns:
-                spring_force_out[row * grid.columns + column[lane]] = ti.Vector(
-                    [force[0][lane], force[1][lane], force[2][lane]])
+        finish(buffer, row, group, h, force[0], force[1], force[2])
 
-    return group_springs
+    return group_pass
 
 
 @ti.data_oriented
@@ -134,8 +133,10 @@ class Forces:
             and model.particle_count >= PACKED_PARTICLE_MINIMUM
         if self.has_grid:
             self.packed_x = model.grid.packed_fields(model.real)
-            self.packed_v = model.grid.packed_fields(model.real) if model.has_dashpots else None
-            self.grid_spring_force = ti.Vector.field(3, model.real, model.particle_count)
+            self.packed_v = model.grid.packed_fields(model.real)
+            # [row, column] up to the last filled group's last lane (the pass stores whole groups)
+            self.grid_spring_force = ti.Vector.field(
+                3, model.real, (model.grid.rows, SIMD_LANES * model.grid.group_count))
             columns = model.grid.columns
             # (first, last + 1) of the packed groups that hold grid columns
             self.filled_groups = (1, (2 * SIMD_LANES + columns - 1) // SIMD_LANES)
@@ -146,8 +147,9 @@ class Forces:
                                                     model.grid.group_count))
             self.wrapping_group = ti.field(ti.i32, len(self.wrapping_groups))
             self.wrapping_group.from_numpy(np.array(self.wrapping_groups, np.int32))
-            self.group_springs = group_spring_function(model, self.packed_x, self.packed_v,
-                                                       self.grid_spring_force)
+            self.group_springs = group_pass_function(model, self.packed_x, self.packed_v,
+                                                     self._store_spring_force)
+            self._pack_constants()
 
     @property
     def compiled_names(self) -> list[str]:
@@ -175,30 +177,66 @@ class Forces:
         (x, v) into packed copy 0, then the SIMD stencil pass. Nothing otherwise
         (``particle_force`` gathers)."""
         if ti.static(self.has_grid):
-            self.pack(x, v, 0)
+            self.pack(x, v, 0, self.model.has_dashpots)
             grid = self.model.grid
             for row, group in ti.ndrange(grid.rows, ti.static(self.filled_groups)):
-                self.group_springs(0, row, group)
+                self.group_springs(0, row, group, 0.0)
 
     @ti.func
-    def pack(self, x, v, buffer):
-        """x (and v, with dashpots) into packed copy ``buffer`` (model.GridStencil)."""
+    def _store_spring_force(self, buffer, row, group, h, f_x, f_y, f_z):
+        """A group's spring forces into ``grid_spring_force`` [N], lane by lane (halo lanes
+        too: no branch, which a function inlined into a real function must not have in
+        Taichi 1.7.4, it crashes the compiler)."""
+        for lane in ti.static(range(SIMD_LANES)):
+            self.grid_spring_force[row, (group - 1) * SIMD_LANES + lane] = ti.Vector(
+                [f_x[lane], f_y[lane], f_z[lane]])
+
+    def _pack_constants(self) -> None:
+        """Per packed group: the lanes' inverse masses [1/kg] (0 for pinned and halo lanes) and
+        whether a lane is pinned."""
+        grid = self.model.grid
+        inv_mass = self.model.particle_inv_mass.to_numpy().reshape(grid.rows, grid.columns)
+        lanes = np.zeros((grid.rows, grid.group_count * SIMD_LANES), inv_mass.dtype)
+        lanes[:, SIMD_LANES:SIMD_LANES + grid.columns] = inv_mass
+        self.packed_inv_mass = ti.Vector.field(SIMD_LANES, self.model.real,
+                                               (grid.rows, grid.group_count))
+        self.packed_inv_mass.from_numpy(lanes.reshape(grid.rows, grid.group_count, SIMD_LANES))
+        pinned = np.zeros_like(lanes, dtype=bool)
+        pinned[:, SIMD_LANES:SIMD_LANES + grid.columns] = inv_mass == 0
+        self.group_has_pin = ti.field(ti.i32, (grid.rows, grid.group_count))
+        self.group_has_pin.from_numpy(
+            pinned.reshape(grid.rows, grid.group_count, SIMD_LANES).any(axis=2).astype(np.int32))
+
+    @property
+    def uniform_effects_only(self) -> bool:
+        """Every effect is a uniform acceleration (gravity): a step can add them per lane."""
+        return all(hasattr(e, "uniform_acceleration") for e in self.effects)
+
+    @property
+    def uniform_acceleration(self) -> tuple:
+        """Σ of the effects' uniform accelerations [m/s²] (x, y, z)."""
+        return tuple(sum(e.uniform_acceleration[c] for e in self.effects
+                         if hasattr(e, "uniform_acceleration")) for c in range(3))
+
+    @ti.func
+    def pack(self, x, v, buffer, with_velocity: ti.template()):
+        """x (and v, ``with_velocity``) into packed copy ``buffer`` (model.GridStencil)."""
         for row, group in ti.ndrange(self.model.grid.rows, self.model.grid.group_count):
-            self.pack_group(x, v, buffer, row, group)
+            self.pack_group(x, v, buffer, row, group, with_velocity)
 
     @ti.func
-    def pack_halo(self, x, v, buffer):
+    def pack_halo(self, x, v, buffer, with_velocity: ti.template()):
         """The groups of packed copy ``buffer`` that hold wrapped columns (periodic grid)."""
         for row, k in ti.ndrange(self.model.grid.rows, ti.static(len(self.wrapping_groups))):
-            self.pack_group(x, v, buffer, row, self.wrapping_group[k])
+            self.pack_group(x, v, buffer, row, self.wrapping_group[k], with_velocity)
 
     @ti.func
-    def pack_group(self, x, v, buffer, row, group):
-        """One group of packed copy ``buffer`` from x (and v, with dashpots). Halo lanes hold
-        the wrapped columns of a periodic grid, else the nearest edge column (finite values
-        that the spring pass masks out)."""
+    def pack_group(self, x, v, buffer, row, group, with_velocity: ti.template()):
+        """One group of packed copy ``buffer`` from x (and v). Halo lanes hold the wrapped
+        columns of a periodic grid, else the nearest edge column (finite values that the spring
+        pass masks out)."""
         self._pack_group(x, self.packed_x, buffer, row, group)
-        if ti.static(self.model.has_dashpots):
+        if ti.static(with_velocity):
             self._pack_group(v, self.packed_v, buffer, row, group)
 
     @ti.func
@@ -206,16 +244,68 @@ class Forces:
         grid = self.model.grid
         values = [ti.Vector.zero(self.model.real, SIMD_LANES) for _ in ti.static(range(3))]
         for lane in range(SIMD_LANES):  # a loop, not unrolled: each unrolled copy compiled slowly
-            column = group * SIMD_LANES + lane - SIMD_LANES
-            if ti.static(grid.periodic):
-                column = (column + grid.columns) % grid.columns
-            else:
-                column = ti.min(ti.max(column, 0), grid.columns - 1)
-            position = source[row * grid.columns + column]
+            position = source[row * grid.columns + self._packed_source_column(group, lane)]
             for c in ti.static(range(3)):
                 values[c][lane] = position[c]
         for c in ti.static(range(3)):
             packed[c][buffer, row, group] = values[c]
+
+    @ti.func
+    def _packed_source_column(self, group, lane):
+        """The grid column that lane ``lane`` of packed group ``group`` holds."""
+        grid = self.model.grid
+        column = group * SIMD_LANES + lane - SIMD_LANES
+        if ti.static(grid.periodic):
+            column = (column + grid.columns) % grid.columns
+        else:
+            column = ti.min(ti.max(column, 0), grid.columns - 1)
+        return column
+
+    @ti.func
+    def store_lane(self, buffer, i_p, x_value, v_value):
+        """Particle i_p's (x, v) into its own lane of packed copy ``buffer``."""
+        grid = self.model.grid
+        column = i_p % grid.columns
+        self._write_lane(buffer, i_p // grid.columns, column // SIMD_LANES + 1,
+                         column % SIMD_LANES, x_value, v_value)
+
+    @ti.func
+    def _write_lane(self, buffer, row, group, lane, x_value, v_value):
+        for c in ti.static(range(3)):
+            self.packed_x[c][buffer, row, group][lane] = x_value[c]
+            self.packed_v[c][buffer, row, group][lane] = v_value[c]
+
+    @ti.func
+    def load_lane(self, buffer, row, column):
+        """(x, v) of grid column ``column`` of row ``row`` from its own lane of packed copy
+        ``buffer``."""
+        group, lane = column // SIMD_LANES + 1, column % SIMD_LANES
+        return (ti.Vector([self.packed_x[c][buffer, row, group][lane]
+                           for c in ti.static(range(3))]),
+                ti.Vector([self.packed_v[c][buffer, row, group][lane]
+                           for c in ti.static(range(3))]))
+
+    @ti.func
+    def refresh_halo(self, buffer):
+        """The halo lanes of packed copy ``buffer`` from the own lanes of the columns they copy
+        (periodic grid), after a step that updated the packed state in place."""
+        grid = self.model.grid
+        for row, k in ti.ndrange(grid.rows, ti.static(len(self.wrapping_groups))):
+            group = self.wrapping_group[k]
+            for lane in range(SIMD_LANES):
+                own_column = group * SIMD_LANES + lane - SIMD_LANES
+                if not 0 <= own_column < grid.columns:
+                    x_value, v_value = self.load_lane(buffer, row,
+                                                      self._packed_source_column(group, lane))
+                    self._write_lane(buffer, row, group, lane, x_value, v_value)
+
+    @ti.func
+    def unpack(self, buffer, state):
+        """Packed copy ``buffer`` into ``state`` (x and v)."""
+        grid = self.model.grid
+        for i_p in range(self.model.particle_count):
+            state.x[i_p], state.v[i_p] = self.load_lane(buffer, i_p // grid.columns,
+                                                        i_p % grid.columns)
 
     @ti.func
     def spring_force(self, x, v, i_p):
@@ -314,7 +404,8 @@ class Forces:
         ``prepare`` at the same (x, v, t) in the same kernel."""
         f = ti.Vector.zero(self.model.real, 3)
         if ti.static(self.has_grid):
-            f = self.grid_spring_force[i_p]
+            f = self.grid_spring_force[i_p // self.model.grid.columns,
+                                       i_p % self.model.grid.columns]
         else:
             f = self.spring_force(x, v, i_p)
         for k in ti.static(range(len(self.effects))):

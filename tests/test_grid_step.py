@@ -1,7 +1,8 @@
-"""The fused grid substep of the Euler integrators (SIMD spring pass, update and re-pack in one
-loop, the packed state carried between substeps) against the CSR gather, which shares no code
-with it but ``particle_force``'s effects: the same motion to float32 rounding, on a periodic grid
-with dashpots (halo columns) and with a projection pass after every substep (re-pack)."""
+"""The grid substeps of the Euler integrators against the CSR gather, which shares no code with
+them but the effects: the same motion to float32 rounding, on a periodic grid with dashpots
+(halo columns). Three paths: gravity only (``steps_lanes``: the whole step in SIMD lanes, the
+packed state unpacked at the end of a launch), air drag (the fused loop with a per-particle
+update and re-pack) and a projection pass after every substep (re-packed each substep)."""
 
 import dataclasses
 import functools
@@ -11,14 +12,17 @@ import pytest
 import taichi as ti
 
 from taichi_cloth.bench import REFERENCE_MATERIAL
-from taichi_cloth.effects import Gravity
+from taichi_cloth.effects import Drag, Gravity
 from taichi_cloth.forces import Forces
 from taichi_cloth.garment import build_garment
 from taichi_cloth.integrators import make_integrator
 from taichi_cloth.model import Model
-from taichi_cloth.scene import ClothConfig, GravityEffect
+from taichi_cloth.scene import ClothConfig, DragEffect, GravityEffect
 
 FLOOR_Y = 0.55  # m: the projection below holds the hem above it
+STEPS, DT = 120, 5e-4  # substeps of the runs, and their length [s]
+RUN_SECONDS = STEPS * DT
+WAIST_SPEED = 0.2  # m/s
 
 
 @ti.data_oriented
@@ -39,28 +43,36 @@ class FloorProjection:
 @functools.cache
 def skirt_model() -> Model:
     """A 64 × 17 skirt (periodic columns, above the packed minimum) of the benchmark's soft
-    fabric with dashpots (β = 2 ms)."""
+    fabric with dashpots (β = 2 ms), its waist ring sliding sideways."""
     cloth = ClothConfig(shape="skirt", resolution=(64, 17), pin="waist")
     material = dataclasses.replace(REFERENCE_MATERIAL, damping=2e-3)
-    return Model(build_garment(cloth, material), "f32", 1.0)
+    model = Model(build_garment(cloth, material), "f32", 1.0)
+    # the waist ring slides along x at WAIST_SPEED during the run: moving pins
+    waist = model.garment.positions[model.pinned_particles]
+    track = np.stack([waist, waist + [WAIST_SPEED * RUN_SECONDS, 0.0, 0.0]])
+    model.pin_track.upload(0.0, RUN_SECONDS, track,
+                           np.broadcast_to([WAIST_SPEED, 0.0, 0.0], track.shape))
+    return model
 
 
 @functools.cache
-def run(packed: bool, serial: bool, projection: bool, steps: int = 120):
-    """(x, v) after ``steps`` symplectic substeps of 0.5 ms from a strained, moving start: the
+def run(packed: bool, serial: bool, variant: str):
+    """(x, v) after STEPS symplectic substeps of DT from a strained, moving start: the
     skirt's radius shrunk by 10 % and a random velocity field. Cached: each packed kernel takes
     seconds to compile."""
     model = skirt_model()
-    forces = Forces(model, [Gravity(GravityEffect())], packed)
+    effects = [Gravity(GravityEffect())] + ([Drag(DragEffect())] if variant == "drag" else [])
+    forces = Forces(model, effects, packed)
     assert forces.has_grid == packed
     integrator = make_integrator("symplectic", forces,
-                                 FloorProjection(model) if projection else None)
+                                 FloorProjection(model) if variant == "projection" else None)
+    assert integrator.steps_lanes == (packed and variant == "gravity")
     integrator.serial = serial
     a, b = model.state(), model.state()
     rng = np.random.default_rng(5)
     a.x.from_numpy(start_positions(model).astype(np.float32))
     a.v.from_numpy((0.5 * rng.standard_normal((model.particle_count, 3))).astype(np.float32))
-    newest, _ = integrator.advance(a, b, 0.0, 5e-4, steps)
+    newest, _ = integrator.advance(a, b, 0.0, DT, STEPS)
     return newest.x.to_numpy(), newest.v.to_numpy()
 
 
@@ -68,20 +80,23 @@ def start_positions(model: Model) -> np.ndarray:
     return model.garment.positions * np.array([0.9, 1.0, 0.9])
 
 
-@pytest.mark.parametrize("projection", [False, True])
-def test_fused_grid_step_matches_the_gather(projection):
-    x_gather, v_gather = run(packed=False, serial=True, projection=projection)
+@pytest.mark.parametrize("variant", ["gravity", "drag", "projection"])
+def test_grid_steps_match_the_gather(variant):
+    x_gather, v_gather = run(packed=False, serial=True, variant=variant)
     assert np.abs(x_gather - start_positions(skirt_model())).max() > 5e-3  # it moved
-    if projection:
+    if variant == "projection":
         assert np.isclose(x_gather[:, 1].min(), FLOOR_Y)  # the projection held some hem up
-    x, v = run(packed=True, serial=True, projection=projection)
+    model = skirt_model()
+    waist_end = model.garment.positions[model.pinned_particles] + [WAIST_SPEED * RUN_SECONDS, 0, 0]
+    np.testing.assert_allclose(x_gather[model.pinned_particles], waist_end, atol=1e-5)  # pins
+    x, v = run(packed=True, serial=True, variant=variant)
     np.testing.assert_allclose(x, x_gather, atol=2e-5)
     np.testing.assert_allclose(v, v_gather, atol=2e-3 * np.abs(v_gather).max())
 
 
 def test_serial_and_parallel_grid_steps_are_bit_identical():
     """Both launch modes gather every particle's springs in the same order."""
-    serial = run(packed=True, serial=True, projection=False)
-    parallel = run(packed=True, serial=False, projection=False)
+    serial = run(packed=True, serial=True, variant="gravity")
+    parallel = run(packed=True, serial=False, variant="gravity")
     for a, b in zip(serial, parallel):
         assert np.array_equal(a, b)

@@ -13,7 +13,8 @@ particle updates) and runs many per launch, in one of two ways:
 
 Substep k reads state ``a`` and writes ``b`` when k is even, the reverse when odd; it is also
 told ``k % 2``, the packed copy (``forces.pack``) that holds its input when the integrator carries
-a packed state from substep to substep, which ``begin_launch`` fills at the start of a launch.
+a packed state from substep to substep, which ``begin_launch`` fills at the start of a launch
+(and ``end_launch`` may unpack at its end).
 An optional ``post_step`` (the contact projection) runs after each substep.
 """
 
@@ -85,6 +86,10 @@ class Integrator:
                 self._substep_and_post(a, b, t + k * dt, dt, k % 2)
             else:
                 self._substep_and_post(b, a, t + k * dt, dt, k % 2)
+        if ti.static(count % 2 == 0):
+            self.end_launch(a, 0)
+        else:
+            self.end_launch(b, 1)
 
     @ti.kernel
     def _advance_serial(self, a: ti.template(), b: ti.template(), t: ti.f64, dt: ti.f64,
@@ -100,10 +105,19 @@ class Integrator:
                 self._substep_and_post(a, b, t + k * dt, dt, k % 2)
             else:
                 self._substep_and_post(b, a, t + k * dt, dt, k % 2)
+        if (count + start_in_b) % 2 == 0:
+            self.end_launch(a, count % 2)
+        else:
+            self.end_launch(b, count % 2)
 
     @ti.func
     def begin_launch(self, state):
         """What a launch does once before its substeps, from its input state: nothing here."""
+
+    @ti.func
+    def end_launch(self, state, buffer):
+        """What a launch does once after its substeps, into its newest state (held by packed
+        copy ``buffer``): nothing here."""
 
     @ti.func
     def _substep_and_post(self, state_in, state_out, t, dt, buffer):
