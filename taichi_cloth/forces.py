@@ -327,26 +327,36 @@ class Forces:
         return f
 
     @ti.func
-    def spring_blocks(self, x, i_p, k, definite: ti.template()):
-        """(neighbour j, K_s, D_s) of the k-th gather entry of particle i_p."""
+    def spring_axis(self, x, i_p, k, definite: ti.template()):
+        """(j, n, k_axial, k_isotropic, c) of the k-th gather entry of particle i_p (spring to j,
+        unit direction n) with K_s = k_axial·n·nᵀ + k_isotropic·I and D_s = c·n·nᵀ, i.e.
+        k_axial = k·(1 − g), k_isotropic = k·g, g = 1 − L/l (clamped at 0 when ``definite``).
+        A zero-length spring has n = 0 and adds nothing."""
         model = self.model
         i_s = model.particle_spring[k]
         j_p = model.particle_neighbor[k]
         d = x[j_p] - x[i_p]
         length = d.norm()
-        stiffness_block = ti.Matrix.zero(model.real, 3, 3)
-        damping_block = ti.Matrix.zero(model.real, 3, 3)
+        n = ti.Vector.zero(model.real, 3)
+        axial, isotropic, damping = model.real(0.0), model.real(0.0), model.real(0.0)
         if length > 0:
             n = d / length
-            outer = n.outer_product(n)
             geometric = 1 - model.spring_rest_length[i_s] / length
             if ti.static(definite):
                 geometric = ti.max(geometric, 0.0)
-            identity = ti.Matrix.identity(model.real, 3)
-            stiffness_block = model.spring_stiffness[i_s] * (outer + geometric * (identity - outer))
+            axial = model.spring_stiffness[i_s] * (1 - geometric)
+            isotropic = model.spring_stiffness[i_s] * geometric
             if ti.static(model.has_dashpots):
-                damping_block = model.spring_damping[i_s] * outer
-        return j_p, stiffness_block, damping_block
+                damping = model.spring_damping[i_s]
+        return j_p, n, axial, isotropic, damping
+
+    @ti.func
+    def spring_blocks(self, x, i_p, k, definite: ti.template()):
+        """(neighbour j, K_s, D_s) of the k-th gather entry of particle i_p (``spring_axis``)."""
+        j_p, n, axial, isotropic, damping = self.spring_axis(x, i_p, k, definite)
+        outer = n.outer_product(n)
+        return (j_p, axial * outer + isotropic * ti.Matrix.identity(self.model.real, 3),
+                damping * outer)
 
     @ti.func
     def jacobian_products(self, x, v, u, i_p, t, definite: ti.template()):
