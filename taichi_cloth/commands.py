@@ -9,6 +9,8 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
+
 from .checkpoint import (Checkpoint, load_checkpoint, remove_checkpoint, save_checkpoint,
                          scene_fingerprint)
 from .errors import InputError, UnstableError
@@ -122,6 +124,7 @@ def run_scene(scene: Scene, frame_count: int, directory: Path, quiet: bool,
         previous = json.loads((directory / "stats.json").read_text())["per_frame"]
         record.frames = [FrameMetrics(**frame) for frame in previous[:first_frame]]
         record.retries = checkpoint.retries
+        record.cg_iterations = checkpoint.cg_iterations.tolist()
         if first_frame >= frame_count:
             raise InputError(f"--resume: frames 0–{first_frame - 1} are done already; ask for "
                              f"more with --frames")
@@ -155,7 +158,8 @@ def run_scene(scene: Scene, frame_count: int, directory: Path, quiet: bool,
             seconds["render"] += rendered - started
             seconds["export"] += time.perf_counter() - rendered
             finished.update(frame=frame, positions=simulation.positions(),
-                            velocities=simulation.state_in.v.to_numpy())
+                            velocities=simulation.state_in.v.to_numpy(),
+                            integrator_memory=simulation.integrator.memory())
             progress.update(t)
 
         try:
@@ -189,6 +193,7 @@ def restore(simulation, checkpoint) -> int:
     simulation.state_in.v.from_numpy(checkpoint.velocities.astype(real))
     simulation.time_step = dataclasses.replace(simulation.time_step, dt=checkpoint.dt,
                                                substeps_per_frame=checkpoint.substeps_per_frame)
+    simulation.integrator.restore_memory(checkpoint.integrator_memory)
     return checkpoint.next_frame
 
 
@@ -208,7 +213,9 @@ def keep_partial_run(simulation, record, directory: Path, finished: dict, stop) 
     save_checkpoint(directory, Checkpoint(
         next_frame=done, positions=finished["positions"], velocities=finished["velocities"],
         dt=simulation.time_step.dt, substeps_per_frame=simulation.time_step.substeps_per_frame,
-        retries=record.retries, fingerprint=scene_fingerprint(simulation.scene)))
+        retries=record.retries, fingerprint=scene_fingerprint(simulation.scene),
+        cg_iterations=np.array(record.cg_iterations, np.int64),
+        integrator_memory=finished["integrator_memory"]))
     command = " ".join(["python -m taichi_cloth", *sys.argv[1:]])
     sys.stderr.write(f"stopped after frame {done - 1}: frames 0–{done - 1} and stats.json are "
                      f"in {directory}; to continue: {command} --resume\n")

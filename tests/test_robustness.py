@@ -126,9 +126,11 @@ def test_identical_runs_are_bit_identical(scene, extra, tmp_path):
             (outputs[1] / "meshes" / name).read_bytes(), name
 
 
+@pytest.mark.parametrize("integrator", ["symplectic", "implicit"])  # implicit: warm start kept
 def test_interrupted_run_keeps_its_frames_and_resumes_to_the_same_result(tmp_path, monkeypatch,
-                                                                          capsys):
-    argv = ["simulate", "hula", "--set", "cloth.resolution=[12, 6]", "--frames", "5", "--quiet"]
+                                                                          capsys, integrator):
+    argv = ["simulate", "hula", "--set", "cloth.resolution=[12, 6]", "--frames", "5", "--quiet",
+            "--set", f"simulation.integrator={integrator}"]
     whole = tmp_path / "whole"
     assert run_cli(argv + ["--out", str(whole)]) == 0
 

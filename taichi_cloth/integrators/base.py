@@ -45,6 +45,14 @@ class Integrator:
         self.has_post_step = post_step is not None
         self.serial = self.model.particle_count <= SERIAL_PARTICLE_LIMIT
 
+    def memory(self) -> dict:
+        """Host copies of what the integrator carries from step to step besides the state
+        (NumPy arrays by name; none here), for a checkpoint."""
+        return {}
+
+    def restore_memory(self, memory: dict) -> None:
+        """Put back what ``memory`` returned (a resumed run then takes the very same steps)."""
+
     def launch_counts(self, count: int) -> list[int]:
         """Substeps per kernel launch for ``count`` substeps."""
         if self.serial:
