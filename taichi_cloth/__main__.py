@@ -120,6 +120,10 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--arch", choices=("cpu", "cuda", "vulkan", "gpu"), default="cpu",
                        help="Taichi backend (default cpu)")
     bench.add_argument("--quiet", action="store_true", help="no progress lines")
+    bench.add_argument("--profile", action="store_true",
+                       help="also print Taichi's kernel profiler table (time per kernel; the "
+                            "profiler's own timing slows the rates, so read them from a run "
+                            "without it)")
     return parser
 
 
@@ -149,7 +153,7 @@ def main(argv=None) -> int:
         if args.command == "bench":
             from .bench import bench_command
             return bench_command(args.sizes, args.integrators, args.scene, args.json,
-                                 args.seconds, args.repeats, args.arch, args.quiet)
+                                 args.seconds, args.repeats, args.arch, args.quiet, args.profile)
         if args.command == "scenes":
             return commands.list_scenes()
         if args.command == "materials":

@@ -396,12 +396,12 @@ def report(rows: list[dict], fits: dict) -> str:
 
 
 def run_bench(sizes, integrators, scene_name, seconds: float, repeats: int, arch: str = "cpu",
-              progress=None) -> tuple[list[dict], dict]:
+              progress=None, profile: bool = False) -> tuple[list[dict], dict]:
     """Rows of every requested part and the scaling fits. ``sizes``/``integrators`` None and
     ``scene_name`` None: everything (the default sizes and integrators, ``hula``, the implicit
     large step); given sizes or integrators alone: the sizes table only; a scene alone: its
     parts only."""
-    start_taichi(arch)
+    start_taichi(arch, kernel_profiler=profile)
     everything = sizes is None and integrators is None and scene_name is None
     rows = []
     say = progress or (lambda message: None)
@@ -438,7 +438,7 @@ def rows_document(rows: list[dict], fits: dict) -> list[dict]:
 
 def bench_command(sizes: str | None, integrators: str | None, scene_name: str | None,
                   json_path: str | None, seconds: float, repeats: int, arch: str,
-                  quiet: bool) -> int:
+                  quiet: bool, profile: bool = False) -> int:
     """The ``bench`` command: the report on the console, the rows as JSON to ``json_path``."""
     from pathlib import Path
 
@@ -459,8 +459,11 @@ def bench_command(sizes: str | None, integrators: str | None, scene_name: str | 
     if scene_name is not None:
         load_scene(scene_name)  # a bad name fails before any measuring
     say = None if quiet else (lambda message: print(f"bench: {message}", flush=True))
-    rows, fits = run_bench(size_list, integrator_list, scene_name, seconds, repeats, arch, say)
+    rows, fits = run_bench(size_list, integrator_list, scene_name, seconds, repeats, arch, say,
+                           profile)
     print(report(rows, fits))
+    if profile:
+        ti.profiler.print_kernel_profiler_info()
     if json_path:
         write_json(Path(json_path), rows_document(rows, fits))
     return 0

@@ -14,12 +14,13 @@ def taichi_started() -> bool:
     return ti.lang.impl.get_runtime().prog is not None
 
 
-def start_taichi(arch: str = "cpu") -> None:
+def start_taichi(arch: str = "cpu", kernel_profiler: bool = False) -> None:
     """``ti.init`` on ``arch`` unless this process already started Taichi (a test session
-    shares one runtime; ``ti.init`` again would drop every field and compiled kernel)."""
+    shares one runtime; ``ti.init`` again would drop every field and compiled kernel).
+    kernel_profiler: time every kernel (``ti.profiler``; it slows each launch)."""
     if taichi_started():
         return
     with contextlib.redirect_stdout(io.StringIO()):  # ti.init prints "Starting on arch=..."
-        ti.init(arch=ARCHES[arch], random_seed=0)
+        ti.init(arch=ARCHES[arch], random_seed=0, kernel_profiler=kernel_profiler)
     if arch != "cpu" and ti.lang.impl.current_cfg().arch == ti.cpu:
         raise InputError(f"--arch {arch}: no {arch} device found (Taichi fell back to the CPU)")

@@ -7,7 +7,7 @@ particle updates) and runs many per launch, in one of two ways:
 
 - parallel (large cloth): ``_advance`` unrolls ``substep_batch`` substeps with ``ti.static``, each
   loop a parallel loop over the particles;
-- serial (cloth of at most ``SERIAL_PARTICLE_LIMIT`` particles, where the hand-offs cost more
+- serial (cloth of at most ``serial_particle_limit`` particles, where the hand-offs cost more
   than a second core gains): ``_advance_serial`` runs a whole frame's substeps in one launch, a
   serial loop over substeps around serial particle loops, on one thread.
 
@@ -24,7 +24,8 @@ from ..forces import Forces
 
 # Measured with ``bench`` (symplectic, reference sheet): one thread 8 ns per particle-substep at
 # every size, two threads 9.7 ns at 128² (each parallel loop costs ~40 µs of thread hand-off on
-# this VM), 6.3 ns at 256², 5.2 ns at 512². Below this count one thread wins.
+# this VM), 6.3 ns at 256², 5.2 ns at 512². Below this count one thread wins; an integrator with
+# more work per particle sets its own ``serial_particle_limit``.
 SERIAL_PARTICLE_LIMIT = 32768
 
 
@@ -36,6 +37,7 @@ class Integrator:
     name = ""
     packs_springs = False  # one force evaluation per substep: worth the SIMD spring pass
     substep_batch = 2  # parallel substeps per kernel launch (each unrolled copy adds compile time)
+    serial_particle_limit = SERIAL_PARTICLE_LIMIT  # cloth this small runs on one thread
 
     def __init__(self, forces: Forces, post_step=None):
         """post_step: an object with a ``@ti.func apply(state, t)`` run after every substep."""
@@ -43,7 +45,7 @@ class Integrator:
         self.model = forces.model
         self.post_step = post_step
         self.has_post_step = post_step is not None
-        self.serial = self.model.particle_count <= SERIAL_PARTICLE_LIMIT
+        self.serial = self.model.particle_count <= self.serial_particle_limit
 
     def memory(self) -> dict:
         """Host copies of what the integrator carries from step to step besides the state
