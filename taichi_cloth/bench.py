@@ -127,7 +127,7 @@ def bench_reference(size: int, integrator_name: str, seconds: float, repeats: in
     model = reference_model(size)
     forces = Forces(model, [Gravity(GravityEffect())], INTEGRATORS[integrator_name].packs_springs)
     integrator = make_integrator(integrator_name, forces)
-    states = [model.state(), model.state()]
+    states = model.states(2)
     batch = max(1, min(256, round(2e6 / model.particle_count)))
     clock = [0.0]
 

@@ -113,7 +113,6 @@ class CapsuleContact:
         self.track = track
         self.model = model
         self.capsule_radius = ti.field(model.real, self.capsule_count)
-        self.capsule_radius.from_numpy(np.asarray(capsule_radius, dtype=track.numpy_real))
         # The pose at the time of the last ``prepare`` [m, m/s]; the bounding sphere [m, m²].
         self.capsule_a = ti.Vector.field(3, model.real, self.capsule_count)
         self.capsule_b = ti.Vector.field(3, model.real, self.capsule_count)
@@ -121,6 +120,8 @@ class CapsuleContact:
         self.capsule_velocity_b = ti.Vector.field(3, model.real, self.capsule_count)
         self.capsule_center = ti.Vector.field(3, model.real, self.capsule_count)
         self.capsule_reach_sq = ti.field(model.real, self.capsule_count)
+        # filled after every allocation: one SNode tree (model.py)
+        self.capsule_radius.from_numpy(np.asarray(capsule_radius, dtype=track.numpy_real))
 
     has_local_jacobian = True
 

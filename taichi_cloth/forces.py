@@ -146,10 +146,14 @@ class Forces:
             self.wrapping_groups = [0] + list(range(self.last_own_group + 1,
                                                     model.grid.group_count))
             self.wrapping_group = ti.field(ti.i32, len(self.wrapping_groups))
-            self.wrapping_group.from_numpy(np.array(self.wrapping_groups, np.int32))
+            # per packed group: the lanes' inverse masses [1/kg] (0 for pinned and halo lanes),
+            # and whether a lane is pinned
+            self.packed_inv_mass = ti.Vector.field(SIMD_LANES, model.real,
+                                                   (model.grid.rows, model.grid.group_count))
+            self.group_has_pin = ti.field(ti.i32, (model.grid.rows, model.grid.group_count))
             self.group_springs = group_pass_function(model, self.packed_x, self.packed_v,
                                                      self._store_spring_force)
-            self._pack_constants()
+            self._upload_grid_constants()  # after every allocation: one SNode tree (model.py)
 
     @property
     def compiled_names(self) -> list[str]:
@@ -191,19 +195,15 @@ class Forces:
             self.grid_spring_force[row, (group - 1) * SIMD_LANES + lane] = ti.Vector(
                 [f_x[lane], f_y[lane], f_z[lane]])
 
-    def _pack_constants(self) -> None:
-        """Per packed group: the lanes' inverse masses [1/kg] (0 for pinned and halo lanes) and
-        whether a lane is pinned."""
+    def _upload_grid_constants(self) -> None:
         grid = self.model.grid
-        inv_mass = self.model.particle_inv_mass.to_numpy().reshape(grid.rows, grid.columns)
-        lanes = np.zeros((grid.rows, grid.group_count * SIMD_LANES), inv_mass.dtype)
+        self.wrapping_group.from_numpy(np.array(self.wrapping_groups, np.int32))
+        inv_mass = self.model.host_inv_mass.reshape(grid.rows, grid.columns)
+        lanes = np.zeros((grid.rows, grid.group_count * SIMD_LANES), self.model.numpy_real)
         lanes[:, SIMD_LANES:SIMD_LANES + grid.columns] = inv_mass
-        self.packed_inv_mass = ti.Vector.field(SIMD_LANES, self.model.real,
-                                               (grid.rows, grid.group_count))
         self.packed_inv_mass.from_numpy(lanes.reshape(grid.rows, grid.group_count, SIMD_LANES))
-        pinned = np.zeros_like(lanes, dtype=bool)
+        pinned = np.zeros(lanes.shape, dtype=bool)
         pinned[:, SIMD_LANES:SIMD_LANES + grid.columns] = inv_mass == 0
-        self.group_has_pin = ti.field(ti.i32, (grid.rows, grid.group_count))
         self.group_has_pin.from_numpy(
             pinned.reshape(grid.rows, grid.group_count, SIMD_LANES).any(axis=2).astype(np.int32))
 

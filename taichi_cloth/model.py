@@ -84,15 +84,19 @@ class GridStencil:
         column_steps = [offset[1] for offset in slot_offsets]
         self.column_runs = [(step, column_steps.index(step), column_steps.count(step))
                             for step in sorted(set(column_steps))]
-        self.slot_row_step = ti.field(ti.i32, self.slot_count)
-        self.slot_row_step.from_numpy(np.array([offset[0] for offset in slot_offsets], np.int32))
         self.group_count = (SIMD_LANES + columns + STENCIL_REACH - 1) // SIMD_LANES + 1
-        numpy_real = np.float64 if real == ti.f64 else np.float32
+        # every field first, then the copies (see Model.__init__)
+        self.slot_row_step = ti.field(ti.i32, self.slot_count)
         self.rest_length = ti.field(real, (rows, self.slot_count))
         self.stiffness = ti.field(real, (rows, self.slot_count))
         self.damping = ti.field(real, (rows, self.slot_count))
-        for table, values in ((self.rest_length, rest_length), (self.stiffness, stiffness),
-                              (self.damping, damping)):
+        self._tables = (rest_length, stiffness, damping)
+
+    def upload(self) -> None:
+        """Copy the tables into the fields (after the model has allocated all of its own)."""
+        self.slot_row_step.from_numpy(np.array([step for step, _ in self.slot_offsets], np.int32))
+        numpy_real = np.float64 if self.rest_length.dtype == ti.f64 else np.float32
+        for table, values in zip((self.rest_length, self.stiffness, self.damping), self._tables):
             table.from_numpy(np.ascontiguousarray(values, dtype=numpy_real))
 
     def packed_fields(self, real) -> list:
@@ -213,13 +217,16 @@ class Model:
         self.pinned_particles = np.flatnonzero(garment.pinned)
         self.pin_slot = ti.field(ti.i32, n)
         self.pin_track = KinematicTrack(max(1, len(self.pinned_particles)), pin_samples, real)
+        damping = (damping_scale or 0.0) * garment.damping_time * stiffness
+        self.grid = grid_stencil(garment, ends, rest_length, stiffness, damping, real)
+        # Every field is allocated before the first copy: a copy is a kernel launch, which
+        # closes Taichi's current SNode tree, and a process may hold only ~500 trees.
 
         self.particle_mass.from_numpy(self._real(garment.mass))
         self.particle_inv_mass.from_numpy(self._real(inv_mass))
         self.spring_ends.from_numpy(ends)
         self.spring_rest_length.from_numpy(self._real(rest_length))
         self.spring_stiffness.from_numpy(self._real(stiffness))
-        damping = (damping_scale or 0.0) * garment.damping_time * stiffness
         self.spring_damping.from_numpy(self._real(damping))
         self.particle_spring_start.from_numpy(spring_start)
         self.particle_spring.from_numpy(spring_item)
@@ -227,7 +234,8 @@ class Model:
         self.triangles.from_numpy(garment.triangles)
         self.particle_triangle_start.from_numpy(triangle_start)
         self.particle_triangle.from_numpy(triangle_item)
-        self.grid = grid_stencil(garment, ends, rest_length, stiffness, damping, real)
+        if self.grid is not None:
+            self.grid.upload()
         slot = np.full(n, -1, dtype=np.int32)
         slot[self.pinned_particles] = np.arange(len(self.pinned_particles), dtype=np.int32)
         self.pin_slot.from_numpy(slot)
@@ -239,6 +247,7 @@ class Model:
         self.host_rest_length = rest_length
         self.host_stiffness = stiffness
         self.host_mass = garment.mass
+        self.host_inv_mass = inv_mass
 
     def _real(self, array) -> np.ndarray:
         """``array`` in the model's float precision, for ``from_numpy``."""
@@ -246,10 +255,15 @@ class Model:
 
     def state(self) -> State:
         """A fresh state at the rest positions, at rest."""
-        state = State(self.particle_count, self.real)
-        state.x.from_numpy(self._real(self.garment.positions))
-        state.v.fill(0.0)
-        return state
+        return self.states(1)[0]
+
+    def states(self, count: int) -> list[State]:
+        """``count`` fresh states, allocated together (one SNode tree) before they are filled."""
+        states = [State(self.particle_count, self.real) for _ in range(count)]
+        for state in states:
+            state.x.from_numpy(self._real(self.garment.positions))
+            state.v.fill(0.0)
+        return states
 
     @ti.func
     def pin_target(self, i_p, t):

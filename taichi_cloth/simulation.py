@@ -85,9 +85,7 @@ class Simulation:
         self.integrator = make_integrator(scene.simulation.integrator, self.forces, projection,
                                           scene.simulation)
         self.time_step = self._choose_time_step()
-        self.state_in = self.model.state()
-        self.state_out = self.model.state()
-        self.backup = self.model.state()
+        self.state_in, self.state_out, self.backup = self.model.states(3)
         self._compiled_batches = set()
         self.gravity = scene.effects["gravity"].g if "gravity" in scene.effects else 0.0
 

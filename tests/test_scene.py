@@ -128,3 +128,15 @@ def test_cli_unstable_run_exits_3_without_writing_nan(tmp_path):
     assert "dt = 0.000520833 s" in message  # 1/30 s / 4 substeps, halved 4 times
     assert "Traceback" not in result.stderr
     assert not (tmp_path / "stats.json").exists()
+
+
+def test_a_simulation_allocates_its_fields_in_few_snode_trees():
+    """Taichi closes an SNode tree at every kernel launch (a field copy is one) and a process
+    holds only about 500 (then it crashes): objects allocate all their fields before copying into
+    them, so a whole dancer simulation costs 3 trees (model, states, contact)."""
+    import taichi as ti
+    program = ti.lang.impl.get_runtime().prog
+    scene = load_scene("hula", ("cloth.resolution=[8, 6]",))
+    before = program.get_snode_tree_size()
+    Simulation(scene, make_body_rig(scene))
+    assert program.get_snode_tree_size() - before <= 3
