@@ -377,27 +377,6 @@ class Forces:
                 damping_product += damping_block @ u[i_p]
         return stiffness_product, damping_product
 
-    @ti.func
-    def jacobian_diagonal(self, x, v, i_p, t):
-        """Diagonals of −∂f_i/∂x_i and −∂f_i/∂v_i (definite version), for a Jacobi
-        preconditioner."""
-        model = self.model
-        stiffness_diagonal = ti.Vector.zero(model.real, 3)
-        damping_diagonal = ti.Vector.zero(model.real, 3)
-        for k in range(model.particle_spring_start[i_p], model.particle_spring_start[i_p + 1]):
-            _, stiffness_block, damping_block = self.spring_blocks(x, i_p, k, True)
-            for c in ti.static(range(3)):
-                stiffness_diagonal[c] += stiffness_block[c, c]
-                damping_diagonal[c] += damping_block[c, c]
-        for e in ti.static(range(len(self.effects))):
-            if ti.static(getattr(self.effects[e], "has_local_jacobian", False)):
-                stiffness_block, damping_block = self.effects[e].local_jacobian(
-                    model, x, v, i_p, t, True)
-                for c in ti.static(range(3)):
-                    stiffness_diagonal[c] -= stiffness_block[c, c]
-                    damping_diagonal[c] -= damping_block[c, c]
-        return stiffness_diagonal, damping_diagonal
-
     @ti.kernel
     def evaluate_jacobian_products(self, x: ti.template(), v: ti.template(), u: ti.template(),
                                    t: ti.f64, definite: ti.template(),

@@ -138,10 +138,11 @@ class EulerStep(Integrator):
             first, end = self._group_particles(row, group)
             for i_p in range(first, end):
                 self._update(state_in, state_out, i_p, t, dt)
-            if ti.static(not grid.periodic) or group <= forces.last_own_group:
-                forces.pack_group(state_out.x, state_out.v, 1 - buffer, row, group,
-                                  self.model.has_dashpots)
-        if ti.static(grid.periodic):  # wrapped columns come from other groups' updates
+            if ti.static(not self.has_post_step):  # else the next substep packs after it
+                if ti.static(not grid.periodic) or group <= forces.last_own_group:
+                    forces.pack_group(state_out.x, state_out.v, 1 - buffer, row, group,
+                                      self.model.has_dashpots)
+        if ti.static(grid.periodic and not self.has_post_step):  # wrapped columns: other groups
             forces.pack_halo(state_out.x, state_out.v, 1 - buffer, self.model.has_dashpots)
 
     @ti.func

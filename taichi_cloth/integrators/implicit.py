@@ -219,15 +219,8 @@ class BackwardEuler(Integrator):
         r·z), the last two where it stopped. Stops when r·z ≤ tolerance²·r₀·P⁻¹r₀ (converged),
         after ``max_iterations`` (unconverged), or at a non-finite r·z or a p·A·p that is not
         positive (breakdown)."""
-        ti.loop_config(serialize=True)
-        for block in range(self.block_count):
-            self._guess_block(block)
-        scale = self._guess_scale()
-        ti.loop_config(serialize=True)
-        for block in range(self.block_count):
-            self._start_block(block, scale)
-        cold_rz = self._sum(self.cold_partial)
-        rz = self._sum(self.residual_partial)
+        sums = self._start_passes(True)
+        cold_rz, rz = sums[0], sums[1]
         threshold = tolerance_sq * cold_rz
         outcome = -1  # running
         iterations = 0
@@ -243,37 +236,44 @@ class BackwardEuler(Integrator):
             elif iterations == max_iterations:
                 outcome = UNCONVERGED
             else:
-                for block in range(self.block_count):
-                    self._direction_block(block, beta)
-                for block in range(self.block_count):
-                    self._apply_block(block)
-                curvature = self._sum(self.curvature_partial)
+                result = self._iteration_passes(rz, beta)
+                curvature = result[0]
                 if not (finite(curvature) and curvature > 0):
                     outcome = BREAKDOWN
                 else:
-                    alpha = rz / curvature
-                    for block in range(self.block_count):
-                        self._update_block(block, alpha)
-                    rz_new = self._sum(self.residual_partial)
-                    beta = rz_new / rz
-                    rz = rz_new
+                    beta = result[1] / rz
+                    rz = result[1]
                     iterations += 1
         return ti.Vector([outcome, iterations, curvature, rz], ti.f64)
 
     @ti.kernel
     def _start(self) -> SUMS:
-        """The start of ``_solve_serial``, parallel over the blocks: returns (r₀·P⁻¹r₀ of the
-        cold start, r·z of the start taken)."""
+        """``_start_passes`` of a parallel solve."""
+        return self._start_passes(False)
+
+    @ti.kernel
+    def _iterate(self, rz: ti.f64, beta: ti.f64) -> SUMS:
+        """``_iteration_passes`` of a parallel solve."""
+        return self._iteration_passes(rz, beta)
+
+    @ti.func
+    def _start_passes(self, serial: ti.template()):
+        """The start δ = s·δ₀ and its residual, pass by pass over the blocks (each pass one loop,
+        serialised when ``serial``): returns (r₀·P⁻¹r₀ of the cold start, r·z of the start
+        taken)."""
+        ti.loop_config(serialize=serial)
         for block in range(self.block_count):
             self._guess_block(block)
         scale = self._guess_scale()
+        ti.loop_config(serialize=serial)
         for block in range(self.block_count):
             self._start_block(block, scale)
         return ti.Vector([self._sum(self.cold_partial), self._sum(self.residual_partial)])
 
-    @ti.kernel
-    def _iterate(self, rz: ti.f64, beta: ti.f64) -> SUMS:
-        """One CG iteration, each pass parallel over the blocks: returns (p·A·p, the new r·z)."""
+    @ti.func
+    def _iteration_passes(self, rz, beta):
+        """One CG iteration, pass by pass over the blocks: returns (p·A·p, the new r·z). With
+        p·A·p not positive the update is garbage, and the caller reports a breakdown."""
         for block in range(self.block_count):
             self._direction_block(block, beta)
         for block in range(self.block_count):
@@ -485,7 +485,7 @@ class BackwardEuler(Integrator):
         model = self.model
         h = ti.cast(dt, model.real)
         for i_p in self.candidate.x:
-            if model.particle_inv_mass[i_p] > 0:
+            if self._free(i_p):
                 self.candidate.v[i_p] += self.delta_v[i_p]
                 self.candidate.x[i_p] = self.start.x[i_p] + h * self.candidate.v[i_p]
                 if last_newton:
