@@ -5,7 +5,7 @@ import io
 
 import taichi as ti
 
-from .errors import InputError
+from taichi_cloth.errors import InputError
 
 ARCHES = {"cpu": ti.cpu, "cuda": ti.cuda, "vulkan": ti.vulkan, "gpu": ti.gpu}
 

@@ -2,10 +2,10 @@
 
 import numpy as np
 
-from taichi_cloth.forces import Forces
-from taichi_cloth.garment import Garment
-from taichi_cloth.integrators import make_integrator
-from taichi_cloth.model import Model
+from taichi_cloth.physics.forces import Forces
+from taichi_cloth.cloth.garment import Garment
+from taichi_cloth.physics.integrators import make_integrator
+from taichi_cloth.physics.model import Model
 
 
 def one_spring_garment(omega: float, rest_length: float = 1.0, amplitude: float = 0.1,

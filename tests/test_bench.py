@@ -6,15 +6,15 @@ import json
 import numpy as np
 import pytest
 
-from taichi_cloth.__main__ import main
-from taichi_cloth.bench import NumpyCloth, reference_cloth, reference_model
-from taichi_cloth.effects import Gravity
-from taichi_cloth.forces import PACKED_PARTICLE_MINIMUM, Forces
-from taichi_cloth.garment import build_garment
-from taichi_cloth.integrators import make_integrator
-from taichi_cloth.materials import PRESETS
-from taichi_cloth.model import Model
-from taichi_cloth.scene import ClothConfig, GravityEffect
+from taichi_cloth.cli import main
+from taichi_cloth.studies.bench import NumpyCloth, reference_cloth, reference_model
+from taichi_cloth.effects.aerodynamics import Gravity
+from taichi_cloth.physics.forces import PACKED_PARTICLE_MINIMUM, Forces
+from taichi_cloth.cloth.garment import build_garment
+from taichi_cloth.physics.integrators import make_integrator
+from taichi_cloth.config.materials import PRESETS
+from taichi_cloth.physics.model import Model
+from taichi_cloth.config.scene import ClothConfig, GravityEffect
 
 import taichi as ti
 

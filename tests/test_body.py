@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from taichi_cloth.body import Body
+from taichi_cloth.body.dancer import Body
 
 # Default skirt rest shape (knee length): a cone from radius waist_radius at waist_height
 # down to radius SKIRT_HEM_RADIUS at SKIRT_LENGTH below the waist, metres at scale 1.

@@ -17,8 +17,8 @@ import imageio.v3 as iio
 import numpy as np
 import pytest
 
-from taichi_cloth.__main__ import main
-from taichi_cloth.compare import compare, default_dts, fitted_order
+from taichi_cloth.cli import main
+from taichi_cloth.studies.compare import compare, default_dts, fitted_order
 from taichi_cloth.errors import InputError
 
 SHEET = ["cloth.resolution=[8,8]", "cloth.material.stretch_stiffness=50",

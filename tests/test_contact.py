@@ -4,11 +4,11 @@ import numpy as np
 import pytest
 import taichi as ti
 
-from taichi_cloth.contact import CapsuleContact, closest_on_segment, closest_points_numpy
-from taichi_cloth.forces import Forces
-from taichi_cloth.kinematics import KinematicTrack
-from taichi_cloth.model import Model
-from taichi_cloth.scene import CollisionEffect
+from taichi_cloth.effects.contact import CapsuleContact, closest_on_segment, closest_points_numpy
+from taichi_cloth.physics.forces import Forces
+from taichi_cloth.physics.control import KinematicTrack
+from taichi_cloth.physics.model import Model
+from taichi_cloth.config.scene import CollisionEffect
 
 from systems import one_spring_garment
 

@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from taichi_cloth.commands import make_body_rig
-from taichi_cloth.contact import closest_points_numpy
-from taichi_cloth.scene import load_scene
-from taichi_cloth.simulation import Simulation
+from taichi_cloth.output.run import make_body_rig
+from taichi_cloth.effects.contact import closest_points_numpy
+from taichi_cloth.config.scene import load_scene
+from taichi_cloth.physics.simulation import Simulation
 
 
 def run_scene(name, *overrides, frames=None):

@@ -8,13 +8,13 @@ import meshio
 import numpy as np
 import pytest
 
-from taichi_cloth import commands
-from taichi_cloth.__main__ import main
-from taichi_cloth.body import Body
-from taichi_cloth.export import seam_split, video_writer, write_png
-from taichi_cloth.garment import build_garment
-from taichi_cloth.scene import load_scene
-from taichi_cloth.surfaces import capsule_template
+from taichi_cloth.output import run as commands
+from taichi_cloth.cli import main
+from taichi_cloth.body.dancer import Body
+from taichi_cloth.output.files import seam_split, video_writer, write_png
+from taichi_cloth.cloth.garment import build_garment
+from taichi_cloth.config.scene import load_scene
+from taichi_cloth.render.surfaces import capsule_template
 
 FRAMES = 3
 COLUMNS, ROWS = 16, 8

@@ -3,12 +3,12 @@
 import numpy as np
 import pytest
 
-from taichi_cloth.effects import Wind
-from taichi_cloth.forces import Forces, spring_energy
-from taichi_cloth.garment import build_garment
-from taichi_cloth.model import Model
-from taichi_cloth.scene import load_scene
-from taichi_cloth.simulation import Simulation
+from taichi_cloth.effects.aerodynamics import Wind
+from taichi_cloth.physics.forces import Forces, spring_energy
+from taichi_cloth.cloth.garment import build_garment
+from taichi_cloth.physics.model import Model
+from taichi_cloth.config.scene import load_scene
+from taichi_cloth.physics.simulation import Simulation
 
 import taichi as ti
 

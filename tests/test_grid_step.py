@@ -11,13 +11,13 @@ import numpy as np
 import pytest
 import taichi as ti
 
-from taichi_cloth.bench import REFERENCE_MATERIAL
-from taichi_cloth.effects import Drag, Gravity
-from taichi_cloth.forces import Forces
-from taichi_cloth.garment import build_garment
-from taichi_cloth.integrators import make_integrator
-from taichi_cloth.model import Model
-from taichi_cloth.scene import ClothConfig, DragEffect, GravityEffect
+from taichi_cloth.studies.bench import REFERENCE_MATERIAL
+from taichi_cloth.effects.aerodynamics import Drag, Gravity
+from taichi_cloth.physics.forces import Forces
+from taichi_cloth.cloth.garment import build_garment
+from taichi_cloth.physics.integrators import make_integrator
+from taichi_cloth.physics.model import Model
+from taichi_cloth.config.scene import ClothConfig, DragEffect, GravityEffect
 
 FLOOR_Y = 0.55  # m: the projection below holds the hem above it
 STEPS, DT = 120, 5e-4  # substeps of the runs, and their length [s]

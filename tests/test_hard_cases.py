@@ -16,9 +16,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from taichi_cloth.commands import make_body_rig
-from taichi_cloth.scene import load_scene
-from taichi_cloth.simulation import Simulation
+from taichi_cloth.output.run import make_body_rig
+from taichi_cloth.config.scene import load_scene
+from taichi_cloth.physics.simulation import Simulation
 
 HARD = Path(__file__).resolve().parent.parent / "scenes" / "hard"
 PENETRATION_MARGIN = 0.01  # m, on top of the contact thickness

@@ -5,17 +5,17 @@ import numpy as np
 import pytest
 import taichi as ti
 
-from taichi_cloth.commands import make_body_rig
-from taichi_cloth.contact import CapsuleContact, GroundContact
-from taichi_cloth.effects import Drag, Gravity, Wind
-from taichi_cloth.forces import Forces, make_effects
-from taichi_cloth.garment import build_garment
-from taichi_cloth.integrators.implicit import BackwardEuler
-from taichi_cloth.kinematics import KinematicTrack
-from taichi_cloth.model import Model
-from taichi_cloth.scene import (CollisionEffect, DragEffect, GravityEffect, GroundEffect,
+from taichi_cloth.output.run import make_body_rig
+from taichi_cloth.effects.contact import CapsuleContact, GroundContact
+from taichi_cloth.effects.aerodynamics import Drag, Gravity, Wind
+from taichi_cloth.physics.forces import Forces, make_effects
+from taichi_cloth.cloth.garment import build_garment
+from taichi_cloth.physics.integrators.implicit import BackwardEuler
+from taichi_cloth.physics.control import KinematicTrack
+from taichi_cloth.physics.model import Model
+from taichi_cloth.config.scene import (CollisionEffect, DragEffect, GravityEffect, GroundEffect,
                                 WindEffect, load_scene)
-from taichi_cloth.simulation import Simulation
+from taichi_cloth.physics.simulation import Simulation
 
 
 class SheetWithBar:

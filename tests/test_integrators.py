@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from taichi_cloth.integrators import INTEGRATORS
-from taichi_cloth.integrators.stability import largest_stable_step, mode_step_limit
+from taichi_cloth.physics.integrators import INTEGRATORS
+from taichi_cloth.physics.integrators.stability import largest_stable_step, mode_step_limit
 
 from systems import SpringOscillator
 
@@ -130,9 +130,9 @@ class MovingAnchor:
     densely into the pin track (Hermite between samples, error ~1e-12 m here)."""
 
     def __init__(self, integrator: str, zeta: float, end_time: float = 2.0):
-        from taichi_cloth.forces import Forces
-        from taichi_cloth.integrators import make_integrator
-        from taichi_cloth.model import Model
+        from taichi_cloth.physics.forces import Forces
+        from taichi_cloth.physics.integrators import make_integrator
+        from taichi_cloth.physics.model import Model
         from systems import one_spring_garment
         self.garment = one_spring_garment(OMEGA, damping_time=2.0 * zeta / OMEGA)
         samples = 2001

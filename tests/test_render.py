@@ -13,14 +13,14 @@ import imageio.v3 as iio
 import numpy as np
 import pytest
 
-from taichi_cloth import commands
-from taichi_cloth.body import Body
+from taichi_cloth.output import run as commands
+from taichi_cloth.body.dancer import Body
 from taichi_cloth.errors import InputError
-from taichi_cloth.garment import build_garment
-from taichi_cloth.render import VULKAN_PACKAGES
-from taichi_cloth.scene import load_scene
-from taichi_cloth.surfaces import BodySurface, ClothSurface
-from taichi_cloth.texture import DEFAULT_TEXTURE, sample_texture, texture_path
+from taichi_cloth.cloth.garment import build_garment
+from taichi_cloth.render.renderer import VULKAN_PACKAGES
+from taichi_cloth.config.scene import load_scene
+from taichi_cloth.render.surfaces import BodySurface, ClothSurface
+from taichi_cloth.render.texture import DEFAULT_TEXTURE, sample_texture, texture_path
 
 REPO = Path(__file__).resolve().parent.parent
 SMALL = ["cloth.resolution=[16,8]"]

@@ -13,8 +13,8 @@ import sys
 
 import pytest
 
-from taichi_cloth.__main__ import main
-from taichi_cloth.simulation import Simulation
+from taichi_cloth.cli import main
+from taichi_cloth.physics.simulation import Simulation
 
 SMALL = ["--set", "cloth.resolution=[6, 5]", "--frames", "2", "--quiet"]
 

@@ -9,9 +9,9 @@ from pathlib import Path
 import pytest
 
 from taichi_cloth.errors import InputError
-from taichi_cloth.scene import load_scene, shipped_scene_names
-from taichi_cloth.simulation import Simulation
-from taichi_cloth.commands import make_body_rig
+from taichi_cloth.config.scene import load_scene, shipped_scene_names
+from taichi_cloth.physics.simulation import Simulation
+from taichi_cloth.output.run import make_body_rig
 
 REPO = Path(__file__).resolve().parent.parent
 

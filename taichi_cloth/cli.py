@@ -1,0 +1,168 @@
+"""Command line: ``python -m taichi_cloth COMMAND ...``. Parses arguments and dispatches."""
+
+import argparse
+import signal
+import sys
+
+from taichi_cloth.errors import InputError, UnstableError
+from taichi_cloth.config.scene import MESH_FORMATS
+
+
+class ArgumentParser(argparse.ArgumentParser):
+    """argparse that reports bad flags as one line with exit code 2 (DESIGN.md)."""
+
+    def error(self, message):
+        sys.stderr.write(f"{self.prog}: {message}\n")
+        raise SystemExit(2)
+
+
+def add_common_arguments(parser: argparse.ArgumentParser, out_help: str, set_help: str) -> None:
+    """--out, --arch, --set and --quiet, shared by the commands that run a scene."""
+    parser.add_argument("--out", help=out_help)
+    parser.add_argument("--arch", choices=("cpu", "cuda", "vulkan", "gpu"),
+                        help="Taichi backend (default: the scene's simulation.arch)")
+    parser.add_argument("--set", dest="overrides", action="append", default=[],
+                        metavar="KEY=VALUE", help=set_help)
+    parser.add_argument("--quiet", action="store_true", help="no progress or summary")
+
+
+def add_scene_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("scene", metavar="SCENE",
+                        help="a scene name in scenes/ (e.g. hula) or a path to a .toml file")
+    parser.add_argument("--frames", type=int, help="number of frames (default: duration × fps)")
+    add_common_arguments(parser, "output folder (default: output/<scene>)",
+                         "override a dotted scene key with a TOML value, e.g. "
+                         "--set simulation.integrator=rk4 (repeatable)")
+    parser.add_argument("--resume", action="store_true",
+                        help="continue an interrupted run from the checkpoint in its output folder")
+
+
+def mesh_formats(text: str) -> tuple[str, ...]:
+    """--meshes: a comma-separated list of mesh formats."""
+    formats = tuple(dict.fromkeys(name.strip().lower() for name in text.split(",") if name.strip()))
+    unknown = [name for name in formats if name not in MESH_FORMATS]
+    if unknown or not formats:
+        raise argparse.ArgumentTypeError(
+            f"unknown mesh format {unknown[0]!r} in {text!r}" if unknown else "no format given")
+    return formats
+
+
+def add_mesh_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--meshes", type=mesh_formats, metavar="LIST",
+                        help=f"cloth meshes per frame, a comma list of {','.join(MESH_FORMATS)} "
+                             "(obj/ply/vtu: one file per frame; xdmf: one time series) under "
+                             "meshes/ (default: the scene's output.meshes)")
+    parser.add_argument("--body-meshes", action="store_true",
+                        help="also write the body's capsules as meshes")
+
+
+def add_compare_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("scene", metavar="SCENE",
+                        help="a scene name in scenes/ (e.g. sheet) or a path to a .toml file")
+    parser.add_argument("--integrators", metavar="LIST",
+                        help="comma list of euler,symplectic,rk4,implicit (default: all)")
+    parser.add_argument("--dts", metavar="LIST",
+                        help="comma list of time steps [s], each rounded down to divide the "
+                             "frame time (default: a geometric series spanning every "
+                             "integrator's stability limit)")
+    parser.add_argument("--duration", metavar="T",
+                        help="simulated seconds per run (default: the scene's, at most 1 s)")
+    parser.add_argument("--reference-dt", metavar="DT",
+                        help="step [s] of the RK4 double-precision reference (default: the "
+                             "smallest swept step / 4)")
+    parser.add_argument("--video-dt", metavar="DT",
+                        help="step [s] of the side-by-side video (default: the largest swept "
+                             "step at which every integrator stayed stable)")
+    parser.add_argument("--no-video", action="store_true",
+                        help="skip the side-by-side video and contact sheet (they need Vulkan)")
+    add_common_arguments(parser, "output folder (default: output/compare/<scene>)",
+                         "override a dotted scene key with a TOML value (repeatable); runs are "
+                         "in f64 unless --set simulation.precision=f32")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = ArgumentParser(prog="python -m taichi_cloth",
+                            description="Mass-spring cloth on a dancing capsule body, in Taichi.")
+    commands = parser.add_subparsers(dest="command", required=True, parser_class=ArgumentParser)
+    simulate = commands.add_parser("simulate", help="physics only; writes stats.json")
+    add_scene_arguments(simulate)
+    add_mesh_arguments(simulate)
+    render = commands.add_parser("render", help="simulate and write PNG frames (headless GGUI), "
+                                                "a video and meshes when asked")
+    add_scene_arguments(render)
+    render.add_argument("--width", type=int, help="frame width in pixels (default: render.width)")
+    render.add_argument("--height", type=int,
+                        help="frame height in pixels (default: render.height)")
+    render.add_argument("--video", choices=("mp4", "gif"),
+                        help="also write <scene>.mp4 (H.264) or .gif at the scene's fps")
+    add_mesh_arguments(render)
+    compare = commands.add_parser(
+        "compare", help="every integrator on one scene: error against a reference vs cost, "
+                        "table, CSV, plots, side-by-side video")
+    add_compare_arguments(compare)
+    commands.add_parser("scenes", help="list the shipped scenes")
+    commands.add_parser("materials", help="list the fabric presets")
+    bench = commands.add_parser(
+        "bench", help="substep throughput: the reference sheet per size and integrator, a NumPy "
+                      "baseline, each effect's cost and a whole scene's speed (docs/performance.md)")
+    bench.add_argument("--sizes", metavar="LIST",
+                       help="reference sheet sizes n (n × n particles), e.g. 32,64,128,256 "
+                            "(alone: only the sizes table)")
+    bench.add_argument("--integrators", metavar="LIST",
+                       help="comma list of integrators (default: symplectic,euler,rk4,implicit)")
+    bench.add_argument("--scene", help="scene for the effect costs and the whole-run speed "
+                                       "(default: hula; alone: only those parts)")
+    bench.add_argument("--json", metavar="FILE", help="also write the rows as JSON to FILE")
+    bench.add_argument("--seconds", type=float, default=1.0,
+                       help="minimum seconds per timed repeat (default 1)")
+    bench.add_argument("--repeats", type=int, default=3,
+                       help="timed repeats per figure, the median is reported (default 3)")
+    bench.add_argument("--arch", choices=("cpu", "cuda", "vulkan", "gpu"), default="cpu",
+                       help="Taichi backend (default cpu)")
+    bench.add_argument("--quiet", action="store_true", help="no progress lines")
+    bench.add_argument("--profile", action="store_true",
+                       help="also print Taichi's kernel profiler table (time per kernel; the "
+                            "profiler's own timing slows the rates, so read them from a run "
+                            "without it)")
+    return parser
+
+
+def stop_on_terminate(signum, frame):
+    """SIGTERM unwinds like Ctrl-C, so half-written outputs are removed (exit 128 + 15)."""
+    raise SystemExit(128 + signum)
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    signal.signal(signal.SIGTERM, stop_on_terminate)
+    from taichi_cloth.output import run as commands
+    try:
+        if args.command == "simulate":
+            return commands.simulate(args.scene, args.overrides, args.frames, args.out,
+                                     args.arch, args.quiet, args.meshes, args.body_meshes,
+                                     args.resume)
+        if args.command == "render":
+            return commands.render(args.scene, args.overrides, args.frames, args.out, args.arch,
+                                   args.quiet, args.width, args.height, args.video, args.meshes,
+                                   args.body_meshes, args.resume)
+        if args.command == "compare":
+            from taichi_cloth.studies.compare import compare
+            return compare(args.scene, args.overrides, args.integrators, args.dts, args.duration,
+                           args.out, args.arch, args.quiet, args.reference_dt, args.video_dt,
+                           not args.no_video)
+        if args.command == "bench":
+            from taichi_cloth.studies.bench import bench_command
+            return bench_command(args.sizes, args.integrators, args.scene, args.json,
+                                 args.seconds, args.repeats, args.arch, args.quiet, args.profile)
+        if args.command == "scenes":
+            return commands.list_scenes()
+        if args.command == "materials":
+            return commands.list_materials()
+    except (InputError, UnstableError) as error:
+        sys.stderr.write(f"error: {error}\n")
+        return error.exit_code
+    except KeyboardInterrupt:
+        sys.stderr.write("interrupted; the files written so far are whole\n")
+        return 130
+    return 1
+

@@ -1,0 +1,207 @@
+"""Garment meshes built in NumPy: particles, UVs, triangles, springs per family, masses, pins.
+
+Two shapes, both regular grids of ``columns × rows`` particles, index = row · columns + column
+(row 0 is the top: the waist of a skirt, the top edge of a sheet):
+
+- a sheet, hanging in the x-y plane (``vertical``) or lying in the x-z plane (``horizontal``);
+- a skirt: a conical tube from the waist circle down to the hem circle, periodic around, so the
+  seam closes (column ``columns − 1`` connects to column 0).
+
+Spring families (seed §2.1, Fig. 1): stretch between grid neighbours, shear across each cell's
+diagonals, bend between skip-one neighbours. Per-spring stiffness follows ``materials`` from the
+local rest spacing; particle masses lump areal density × one third of each adjacent triangle.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from taichi_cloth.errors import InputError
+from taichi_cloth.config.materials import Material, spring_constants
+from taichi_cloth.config.scene import ClothConfig
+
+
+@dataclass(frozen=True)
+class Garment:
+    """Rest geometry and topology of one piece of cloth (all float arrays float64, SI units).
+
+    positions (N,3) m; uvs (N,2) texture coordinates in [0,1]; triangles (T,3) particle indices,
+    counter-clockwise seen from outside (skirt) or from +z (vertical sheet); springs: family name →
+    (S_f,2) particle indices; spring_stiffness: family → (S_f,) N/m; mass (N,) kg; pinned (N,) bool;
+    columns, rows: grid shape; periodic: whether columns wrap around (skirt).
+    """
+
+    positions: np.ndarray
+    uvs: np.ndarray
+    triangles: np.ndarray
+    springs: dict
+    spring_stiffness: dict
+    mass: np.ndarray
+    pinned: np.ndarray
+    columns: int
+    rows: int
+    periodic: bool
+    damping_time: float
+
+    @property
+    def particle_count(self) -> int:
+        return len(self.positions)
+
+    @property
+    def spring_count(self) -> int:
+        return sum(len(s) for s in self.springs.values())
+
+
+def grid_springs(columns: int, rows: int, periodic: bool) -> dict:
+    """Spring index pairs per family for a columns × rows grid (periodic: columns wrap)."""
+    index = np.arange(rows * columns).reshape(rows, columns)
+
+    def pairs(row_step: int, column_step: int) -> np.ndarray:
+        row_end = rows - row_step
+        if periodic:
+            a = index[:row_end, :]
+            b = np.roll(index, -column_step, axis=1)[row_step:, :]
+        elif column_step >= 0:
+            a = index[:row_end, :columns - column_step]
+            b = index[row_step:, column_step:]
+        else:
+            a = index[:row_end, -column_step:]
+            b = index[row_step:, :columns + column_step]
+        return np.stack([a.ravel(), b.ravel()], axis=1).astype(np.int32)
+
+    return {
+        "stretch": np.concatenate([pairs(0, 1), pairs(1, 0)]),
+        "shear": np.concatenate([pairs(1, 1), pairs(1, -1)]),
+        "bend": np.concatenate([pairs(0, 2), pairs(2, 0)]),
+    }
+
+
+def grid_triangles(columns: int, rows: int, periodic: bool) -> np.ndarray:
+    """Two triangles per cell, (T,3) int32."""
+    index = np.arange(rows * columns).reshape(rows, columns)
+    right = np.roll(index, -1, axis=1) if periodic else index[:, 1:]
+    left = index if periodic else index[:, :-1]
+    top_left, top_right = left[:-1], right[:-1]
+    bottom_left, bottom_right = left[1:], right[1:]
+    first = np.stack([top_left, bottom_left, bottom_right], axis=-1).reshape(-1, 3)
+    second = np.stack([top_left, bottom_right, top_right], axis=-1).reshape(-1, 3)
+    triangles = np.concatenate([first, second]).astype(np.int32)
+    # A skirt's rows run down and its columns counter-clockwise seen from above, which winds the
+    # sheet's triangles inwards on the cone: reverse them so that normals point outwards.
+    return triangles[:, [0, 2, 1]] if periodic else triangles
+
+
+def lumped_mass(positions: np.ndarray, triangles: np.ndarray, density: float) -> np.ndarray:
+    """m_i = ρ · Σ_{triangles t ∋ i} area_t / 3 [kg]."""
+    p0, p1, p2 = (positions[triangles[:, k]] for k in range(3))
+    area = 0.5 * np.linalg.norm(np.cross(p1 - p0, p2 - p0), axis=1)
+    mass = np.zeros(len(positions))
+    for k in range(3):
+        np.add.at(mass, triangles[:, k], density * area / 3.0)
+    return mass
+
+
+def sheet_positions(cloth: ClothConfig) -> np.ndarray:
+    columns, rows = cloth.resolution
+    width, depth = cloth.size
+    x = np.linspace(-width / 2, width / 2, columns)
+    along = np.linspace(0.0, depth, rows)
+    xx, aa = np.meshgrid(x, along)
+    if cloth.orientation == "vertical":
+        return np.stack([xx, cloth.height - aa, np.zeros_like(xx)], axis=-1).reshape(-1, 3)
+    return np.stack([xx, np.full_like(xx, cloth.height), aa - depth / 2], axis=-1).reshape(-1, 3)
+
+
+def skirt_positions(cloth: ClothConfig, waist_height: float) -> np.ndarray:
+    """A cone: radius from waist to hem; ``length`` is measured along the fabric."""
+    around, down = cloth.resolution
+    flare = cloth.hem_radius - cloth.waist_radius
+    drop = np.sqrt(cloth.length ** 2 - flare ** 2)
+    angle = 2 * np.pi * np.arange(around) / around
+    fraction = np.linspace(0.0, 1.0, down)
+    radius = cloth.waist_radius + flare * fraction
+    ring_height = waist_height - drop * fraction
+    x = radius[:, None] * np.cos(angle)[None, :]
+    z = radius[:, None] * np.sin(angle)[None, :]
+    y = np.repeat(ring_height[:, None], around, axis=1)
+    return np.stack([x, y, z], axis=-1).reshape(-1, 3)
+
+
+def pinned_particles(cloth: ClothConfig) -> np.ndarray:
+    columns, rows = cloth.resolution
+    pinned = np.zeros(columns * rows, dtype=bool)
+    if cloth.pin in ("waist", "top-edge"):
+        pinned[:columns] = True
+    elif cloth.pin == "corners":
+        pinned[[0, columns - 1]] = True
+    return pinned
+
+
+def family_stiffness(positions: np.ndarray, springs: dict, material: Material, columns: int,
+                     rows: int, periodic: bool) -> dict:
+    """Per-spring stiffness [N/m] from the local rest spacing of each spring's two particles.
+
+    A particle's spacing along a row (dx) is its distance to its right neighbour; down a column
+    (dz) to the particle below (the last column or row reuses the one before it).
+    ``materials.spring_constants`` maps (dx, dz) to stiffness.
+    """
+    grid = positions.reshape(rows, columns, 3)
+    if periodic:
+        dx = np.linalg.norm(np.roll(grid, -1, axis=1) - grid, axis=-1)
+    else:
+        dx = np.linalg.norm(np.diff(grid, axis=1), axis=-1)
+        dx = np.concatenate([dx, dx[:, -1:]], axis=1)
+    dz = np.linalg.norm(np.diff(grid, axis=0), axis=-1)
+    dz = np.concatenate([dz, dz[-1:]], axis=0)
+    dx, dz = dx.ravel(), dz.ravel()
+    stiffness = {}
+    for family, pairs in springs.items():
+        a, b = pairs[:, 0], pairs[:, 1]
+        constants = spring_constants(material, 0.5 * (dx[a] + dx[b]), 0.5 * (dz[a] + dz[b]))
+        horizontal = (a // columns) == (b // columns)
+        if family == "stretch":
+            stiffness[family] = np.where(horizontal, constants.stretch_x, constants.stretch_z)
+        else:
+            stiffness[family] = np.broadcast_to(getattr(constants, family), a.shape).astype(float)
+    return stiffness
+
+
+def build_garment(cloth: ClothConfig, material: Material, waist_height: float | None = None,
+                  source: str = "") -> Garment:
+    """Build the garment a scene's ``[cloth]`` describes. ``waist_height`` places a skirt (the
+    body's waist when there is one, else ``cloth.waist_height``)."""
+    columns, rows = cloth.resolution
+    periodic = cloth.shape == "skirt"
+    if periodic:
+        if columns < 5:
+            raise InputError(f"{source}: cloth.resolution: a skirt needs at least 5 particles "
+                             f"around, got {columns}")
+        if abs(cloth.hem_radius - cloth.waist_radius) >= cloth.length:
+            raise InputError(f"{source}: cloth.length: must exceed |hem_radius − waist_radius| "
+                             f"= {abs(cloth.hem_radius - cloth.waist_radius):g} m")
+        positions = skirt_positions(cloth, cloth.waist_height if waist_height is None
+                                    else waist_height)
+        uvs = np.stack(np.meshgrid(np.arange(columns) / columns,
+                                   1.0 - np.linspace(0, 1, rows)), axis=-1).reshape(-1, 2)
+    else:
+        positions = sheet_positions(cloth)
+        uvs = np.stack(np.meshgrid(np.linspace(0, 1, columns),
+                                   1.0 - np.linspace(0, 1, rows)), axis=-1).reshape(-1, 2)
+    all_springs = grid_springs(columns, rows, periodic)
+    springs = {family: all_springs[family] for family in ("stretch", "shear", "bend")
+               if family in cloth.springs}
+    triangles = grid_triangles(columns, rows, periodic)
+    return Garment(
+        positions=positions,
+        uvs=uvs,
+        triangles=triangles,
+        springs=springs,
+        spring_stiffness=family_stiffness(positions, springs, material, columns, rows,
+                                          periodic),
+        mass=lumped_mass(positions, triangles, material.density),
+        pinned=pinned_particles(cloth),
+        columns=columns,
+        rows=rows,
+        periodic=periodic,
+        damping_time=material.damping,
+    )

@@ -1,0 +1,469 @@
+"""Scene files: TOML plus ``--set`` overrides into a frozen, validated ``Scene``.
+
+Every key of every section is declared once, in the dataclasses below, with its default and its
+check (``setting``). ``load_scene`` parses the file with ``tomllib``, applies the overrides, and
+walks the tables against those declarations: an unknown key (with the closest valid one
+suggested), a wrong type or an impossible value raises ``InputError`` naming the file (or the
+``--set`` flag) and the dotted key. Units are SI, angles in degrees, y is up.
+"""
+
+import dataclasses
+import difflib
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from taichi_cloth.errors import InputError
+from taichi_cloth.config.materials import PRESETS, Material
+
+SCENES_DIR = Path(__file__).resolve().parents[2] / "scenes"
+INTEGRATOR_NAMES = ("euler", "symplectic", "rk4", "implicit")
+ARCH_NAMES = ("cpu", "cuda", "vulkan", "gpu")
+SPRING_FAMILIES = ("stretch", "shear", "bend")
+MESH_FORMATS = ("obj", "ply", "vtu", "xdmf")
+
+
+def setting(default: Any, kind: str, *, low: float | None = None, high: float | None = None,
+            low_inclusive: bool = True, choices: tuple | None = None, length: int | None = None,
+            doc: str = ""):
+    """A declared scene key: its default, its kind and its allowed values.
+
+    kind: "float", "int", "str", "bool", "float_list", "int_list", "str_list", "dt".
+    low/high bound numbers (every element of a list); choices bound strings (every element of a
+    list); length fixes a list's length.
+    """
+    check = dict(kind=kind, low=low, high=high, low_inclusive=low_inclusive, choices=choices,
+                 length=length, doc=doc)
+    if isinstance(default, list):
+        default = tuple(default)
+    return field(default=default, metadata=check)
+
+
+@dataclass(frozen=True)
+class SceneInfo:
+    name: str = setting("", "str", doc="scene name; defaults to the file's stem")
+    description: str = setting("", "str")
+    duration: float = setting(4.0, "float", low=0.0, low_inclusive=False, doc="seconds")
+    fps: int = setting(30, "int", low=1, high=1000, doc="frames per second")
+
+
+@dataclass(frozen=True)
+class SimulationConfig:
+    integrator: str = setting("symplectic", "str", choices=INTEGRATOR_NAMES)
+    dt: Any = setting("auto", "dt", low=0.0, low_inclusive=False,
+                      doc="time step [s], or \"auto\" to derive it from the stability bound")
+    arch: str = setting("cpu", "str", choices=ARCH_NAMES)
+    precision: str = setting("f32", "str", choices=("f32", "f64"))
+    safety: float = setting(0.8, "float", low=0.0, high=1.0, low_inclusive=False,
+                            doc="fraction of the stability bound used by dt = \"auto\"")
+    blowup_strain: float = setting(1.0, "float", low=0.0, low_inclusive=False,
+                                   doc="max stretch-spring strain at which a frame counts as exploded")
+    max_speed: float = setting(50.0, "float", low=0.0, low_inclusive=False,
+                               doc="particle speed [m/s] at which a frame counts as exploded")
+    max_retries: int = setting(4, "int", low=0, high=20,
+                               doc="times a bad frame is redone with the step halved")
+    cg_tolerance: float = setting(1e-3, "float", low=0.0, low_inclusive=False,
+                                  doc="implicit integrator: relative residual of conjugate gradients")
+    cg_max_iterations: int = setting(500, "int", low=1, high=100000)
+    newton_iterations: int = setting(1, "int", low=1, high=50,
+                                     doc="implicit integrator: linearisations per step (1 = "
+                                         "Baraff & Witkin)")
+
+
+@dataclass(frozen=True)
+class MaterialOverrides:
+    preset: str = setting("cotton", "str", choices=tuple(PRESETS))
+    density: float | None = setting(None, "float", low=0.0, low_inclusive=False, doc="kg/m²")
+    stretch_stiffness: float | None = setting(None, "float", low=0.0, low_inclusive=False, doc="N/m")
+    shear_stiffness: float | None = setting(None, "float", low=0.0, doc="N/m")
+    bend_stiffness: float | None = setting(None, "float", low=0.0, doc="N·m")
+    damping: float | None = setting(None, "float", low=0.0, doc="Rayleigh damping time β [s]")
+    thickness: float | None = setting(None, "float", low=0.0, low_inclusive=False, doc="m")
+
+    def resolve(self) -> Material:
+        """The preset with the given values replaced."""
+        changed = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
+                   if f.name != "preset" and getattr(self, f.name) is not None}
+        return dataclasses.replace(PRESETS[self.preset], **changed)
+
+
+@dataclass(frozen=True)
+class ClothConfig:
+    shape: str = setting("sheet", "str", choices=("skirt", "sheet"))
+    resolution: tuple = setting([24, 24], "int_list", low=2, high=4096, length=2,
+                                doc="[around, down] for a skirt, [x, z] for a sheet")
+    material: MaterialOverrides = MaterialOverrides()
+    pin: str = setting("top-edge", "str", choices=("waist", "top-edge", "corners", "none"))
+    springs: tuple = setting(list(SPRING_FAMILIES), "str_list", choices=SPRING_FAMILIES)
+    waist_radius: float = setting(0.17, "float", low=0.0, low_inclusive=False, doc="skirt, m")
+    hem_radius: float = setting(0.40, "float", low=0.0, low_inclusive=False, doc="skirt, m")
+    length: float = setting(0.55, "float", low=0.0, low_inclusive=False, doc="skirt, m")
+    waist_height: float = setting(1.0, "float", doc="skirt without a body: height of the waist, m")
+    size: tuple = setting([1.0, 1.0], "float_list", low=0.0, low_inclusive=False, length=2,
+                          doc="sheet [x, z] extent, m")
+    height: float = setting(1.0, "float", doc="sheet: y of its top edge (vertical) or plane, m")
+    orientation: str = setting("vertical", "str", choices=("vertical", "horizontal"),
+                               doc="sheet hangs in the x-y plane or lies in the x-z plane")
+
+
+@dataclass(frozen=True)
+class GravityEffect:
+    g: float = setting(9.81, "float", low=0.0, doc="m/s², pointing down (−y)")
+
+
+@dataclass(frozen=True)
+class DampingEffect:
+    scale: float = setting(1.0, "float", low=0.0, doc="multiplies the material's damping time")
+
+
+@dataclass(frozen=True)
+class DragEffect:
+    coefficient: float = setting(1.0, "float", low=0.0, doc="drag coefficient C_d of a face")
+    air_density: float = setting(1.2, "float", low=0.0, doc="kg/m³")
+
+
+@dataclass(frozen=True)
+class WindEffect:
+    strength: float = setting(3.0, "float", low=0.0, doc="alpha: wind speed, m/s")
+    azimuth: float = setting(0.0, "float", low=-360.0, high=360.0,
+                             doc="beta: degrees from +x towards +z")
+    elevation: float = setting(0.0, "float", low=-90.0, high=90.0,
+                               doc="gamma: degrees above the horizontal")
+    gusts: float = setting(0.0, "float", low=0.0, high=1.0, doc="relative gust amplitude")
+    gust_frequency: float = setting(0.5, "float", low=0.0, low_inclusive=False, doc="Hz")
+    coefficient: float = setting(1.0, "float", low=0.0, doc="pressure coefficient C_d of a face")
+    air_density: float = setting(1.2, "float", low=0.0, doc="kg/m³")
+
+
+@dataclass(frozen=True)
+class CollisionEffect:
+    stiffness: float = setting(1e5, "float", low=0.0, low_inclusive=False,
+                               doc="penalty stiffness per unit particle mass, 1/s²")
+    damping: float = setting(0.1, "float", low=0.0, doc="normal damping ratio ζ")
+    friction: float = setting(0.3, "float", low=0.0, doc="Coulomb coefficient μ")
+    thickness: float = setting(0.005, "float", low=0.0, doc="contact margin around capsules, m")
+    mode: str = setting("penalty", "str", choices=("penalty", "penalty+projection"))
+
+
+@dataclass(frozen=True)
+class GroundEffect:
+    height: float = setting(0.0, "float", doc="y of the ground plane, m")
+    stiffness: float = setting(1e5, "float", low=0.0, low_inclusive=False,
+                               doc="penalty stiffness per unit particle mass, 1/s²")
+    damping: float = setting(0.1, "float", low=0.0, doc="normal damping ratio ζ")
+    friction: float = setting(0.5, "float", low=0.0, doc="Coulomb coefficient μ")
+    thickness: float = setting(0.005, "float", low=0.0, doc="contact margin above the plane, m")
+
+
+EFFECT_TYPES = {
+    "gravity": GravityEffect,
+    "damping": DampingEffect,
+    "drag": DragEffect,
+    "wind": WindEffect,
+    "collision": CollisionEffect,
+    "ground": GroundEffect,
+}
+
+
+@dataclass(frozen=True)
+class BodyConfig:
+    motion: str = setting("still", "str", choices=("hula", "still"))
+    tempo: float = setting(90.0, "float", low=0.0, low_inclusive=False, high=400.0,
+                           doc="beats per minute")
+    amplitude: float = setting(1.0, "float", low=0.0, high=3.0, doc="scale of sway and circles")
+    capsules: str = setting("split", "str", choices=("split", "coarse", "bar", "ball"),
+                            doc="paper Fig. 4, Fig. 3, or one static bar or ball (draping)")
+    scale: float = setting(1.0, "float", low=0.1, high=10.0, doc="body size relative to 1.6 m")
+    ease_in: float = setting(1.0, "float", low=0.0, doc="seconds from rest to full motion")
+
+
+@dataclass(frozen=True)
+class RenderConfig:
+    width: int = setting(640, "int", low=16, high=8192, doc="frame width, pixels")
+    height: int = setting(480, "int", low=16, high=8192, doc="frame height, pixels")
+    camera_position: tuple = setting([0.9, 1.25, 3.1], "float_list", length=3, doc="m")
+    camera_lookat: tuple = setting([0.0, 0.8, 0.0], "float_list", length=3, doc="m")
+    fov: float = setting(40.0, "float", low=1.0, high=170.0, doc="vertical field of view, degrees")
+    texture: str = setting("", "str", doc="cloth print: an image file relative to the scene "
+                                          "file; \"\" = the shipped pareo print on a skirt and "
+                                          "cloth_color on a sheet; \"none\" = cloth_color")
+    texture_repeat: tuple = setting([1.0, 1.0], "float_list", low=0.0, low_inclusive=False,
+                                    length=2, doc="times the image tiles across [u, v]")
+    cloth_color: tuple = setting([0.85, 0.3, 0.25], "float_list", low=0.0, high=1.0, length=3)
+    subdivision: int = setting(6, "int", low=1, high=16,
+                               doc="render vertices per cloth particle spacing (smooth "
+                                   "Catmull-Rom surface through the particles)")
+    body_color: tuple = setting([0.80, 0.58, 0.45], "float_list", low=0.0, high=1.0, length=3,
+                                doc="skin")
+    background: tuple = setting([0.80, 0.87, 0.93], "float_list", low=0.0, high=1.0, length=3)
+    ground: bool = setting(True, "bool", doc="draw a floor at y = 0 (or [effects.ground] height)")
+    ambient: float = setting(0.38, "float", low=0.0, high=2.0,
+                             doc="light from everywhere, fraction of a surface's colour")
+    light: float = setting(0.62, "float", low=0.0, high=2.0,
+                           doc="key light above the camera's right shoulder (a fill light from "
+                               "the left has a third of it)")
+
+
+@dataclass(frozen=True)
+class OutputConfig:
+    dir: str = setting("", "str", doc="output folder; default output/<scene>")
+    meshes: tuple = setting([], "str_list", choices=MESH_FORMATS,
+                            doc="cloth meshes per frame (xdmf: one time series)")
+    video: str = setting("", "str", choices=("", "mp4", "gif"), doc="render: also a video")
+    body_meshes: bool = setting(False, "bool", doc="also export the body capsules as meshes")
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A whole validated scene. ``effects`` maps each declared effect name to its settings, in
+    a fixed order; an effect that is absent is not compiled (DESIGN.md, promise 3)."""
+
+    path: str
+    scene: SceneInfo
+    simulation: SimulationConfig
+    cloth: ClothConfig
+    effects: dict
+    body: BodyConfig | None
+    render: RenderConfig
+    output: OutputConfig
+
+    @property
+    def name(self) -> str:
+        return self.scene.name
+
+    @property
+    def material(self) -> Material:
+        return self.cloth.material.resolve()
+
+    @property
+    def frame_count(self) -> int:
+        return max(1, round(self.scene.duration * self.scene.fps))
+
+
+# ---------------------------------------------------------------------------------------------
+# Parsing and overrides
+
+
+def resolve_scene_path(name_or_path: str) -> Path:
+    """A scene name in ``scenes/`` or a path to a ``.toml`` file."""
+    candidate = Path(name_or_path)
+    if candidate.suffix == ".toml" or candidate.exists():
+        if not candidate.is_file():
+            raise InputError(f"{name_or_path}: scene file not found")
+        return candidate
+    shipped = SCENES_DIR / f"{name_or_path}.toml"
+    if shipped.is_file():
+        return shipped
+    names = ", ".join(shipped_scene_names())
+    raise InputError(f"{name_or_path}: no such scene (shipped scenes: {names}; or give a .toml path)")
+
+
+def shipped_scene_names() -> list[str]:
+    return sorted(p.stem for p in SCENES_DIR.glob("*.toml"))
+
+
+def parse_override(text: str) -> tuple[list[str], Any]:
+    """``KEY=VALUE`` → (dotted key parts, value). VALUE is TOML; a bare word that is not valid
+    TOML is a string (DESIGN.md)."""
+    key, sep, raw = text.partition("=")
+    key = key.strip()
+    if not sep or not key or any(not part for part in key.split(".")):
+        raise InputError(f"--set {text}: expected KEY=VALUE with a dotted key, e.g. "
+                         f"--set simulation.integrator=rk4")
+    raw = raw.strip()
+    try:
+        value = tomllib.loads(f"v = {raw}")["v"]
+    except tomllib.TOMLDecodeError:
+        if not raw or any(c in raw for c in "[]{}\"'=,"):
+            raise InputError(f"--set {text}: value {raw!r} is not a valid TOML value") from None
+        value = raw
+    return key.split("."), value
+
+
+def apply_override(raw: dict, parts: list[str], value: Any) -> None:
+    """Set a dotted key in the raw TOML tree, creating tables on the way.
+
+    ``cloth.material`` may be a preset name or a table; setting a key below a name turns it into
+    ``{preset = name, ...}``. ``effects.X = false`` removes effect X, ``true`` declares it with
+    its defaults.
+    """
+    node = raw
+    for depth, part in enumerate(parts[:-1]):
+        child = node.get(part)
+        if isinstance(child, str) and parts[:depth + 1] == ["cloth", "material"]:
+            child = {"preset": child}
+        elif child is None or child is True:
+            child = {}
+        elif not isinstance(child, dict):
+            dotted = ".".join(parts[:depth + 1])
+            raise InputError(f"--set {'.'.join(parts)}: {dotted} is not a table")
+        node[part] = child
+        node = child
+    node[parts[-1]] = value
+
+
+# ---------------------------------------------------------------------------------------------
+# Validation
+
+
+class _Context:
+    """Where a value came from, for error messages: the file, or the --set flag."""
+
+    def __init__(self, path: str, overridden: list[str]):
+        self.path = path
+        self.overridden = overridden
+
+    def error(self, dotted: str, problem: str) -> InputError:
+        for key in self.overridden:
+            if dotted == key or dotted.startswith(key + ".") or key.startswith(dotted + "."):
+                return InputError(f"--set {key}: {problem}")
+        return InputError(f"{self.path}: {dotted}: {problem}")
+
+
+def _check_number(ctx, dotted, value, meta, integer):
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or (
+            integer and not isinstance(value, int)):
+        raise ctx.error(dotted, f"expected {'an integer' if integer else 'a number'}, "
+                                f"got {value!r}")
+    if not math.isfinite(value):
+        raise ctx.error(dotted, f"must be finite, got {value!r}")
+    low, high = meta["low"], meta["high"]
+    if low is not None and (value < low or (value == low and not meta["low_inclusive"])):
+        bound = f">= {low}" if meta["low_inclusive"] else f"> {low}"
+        raise ctx.error(dotted, f"must be {bound}, got {value!r}")
+    if high is not None and value > high:
+        raise ctx.error(dotted, f"must be <= {high}, got {value!r}")
+    return float(value) if not integer else value
+
+
+def _check_choice(ctx, dotted, value, meta):
+    if not isinstance(value, str):
+        raise ctx.error(dotted, f"expected a string, got {value!r}")
+    choices = meta["choices"]
+    if choices is not None and value not in choices:
+        listed = ", ".join(repr(c) for c in choices)
+        raise ctx.error(dotted, f"unknown value {value!r}; valid: {listed}")
+    return value
+
+
+def _check_value(ctx, dotted, value, meta):
+    kind = meta["kind"]
+    if kind == "float":
+        return _check_number(ctx, dotted, value, meta, integer=False)
+    if kind == "int":
+        return _check_number(ctx, dotted, value, meta, integer=True)
+    if kind == "str":
+        return _check_choice(ctx, dotted, value, meta)
+    if kind == "bool":
+        if not isinstance(value, bool):
+            raise ctx.error(dotted, f"expected true or false, got {value!r}")
+        return value
+    if kind == "dt":
+        if value == "auto":
+            return value
+        if isinstance(value, str):
+            raise ctx.error(dotted, f"expected a number of seconds or \"auto\", got {value!r}")
+        return _check_number(ctx, dotted, value, meta, integer=False)
+    element_kind = kind.removesuffix("_list")
+    if not isinstance(value, list):
+        raise ctx.error(dotted, f"expected a list, got {value!r}")
+    if meta["length"] is not None and len(value) != meta["length"]:
+        raise ctx.error(dotted, f"expected a list of {meta['length']} values, got {value!r}")
+    element_meta = dict(meta, kind=element_kind)
+    return tuple(_check_value(ctx, f"{dotted}[{i}]", v, element_meta) for i, v in enumerate(value))
+
+
+def _build(ctx: _Context, cls, table: Any, dotted: str):
+    """Validate a TOML table against dataclass ``cls`` and construct it."""
+    if not isinstance(table, dict):
+        raise ctx.error(dotted, f"expected a table, got {table!r}")
+    declared = {f.name: f for f in dataclasses.fields(cls)}
+    for key in table:
+        if key not in declared:
+            close = difflib.get_close_matches(key, list(declared), n=1)
+            hint = f"; did you mean '{close[0]}'?" if close else \
+                f"; valid keys: {', '.join(declared)}"
+            raise ctx.error(f"{dotted}.{key}", f"unknown key '{key}' in [{dotted}]{hint}")
+    values = {}
+    for name, f in declared.items():
+        if name not in table:
+            continue
+        child = f"{dotted}.{name}"
+        if f.type is MaterialOverrides:
+            raw = table[name]
+            if isinstance(raw, str):
+                raw = {"preset": raw}
+            values[name] = _build(ctx, MaterialOverrides, raw, child)
+        else:
+            values[name] = _check_value(ctx, child, table[name], f.metadata)
+    return cls(**values)
+
+
+def _build_effects(ctx: _Context, table: Any) -> dict:
+    if not isinstance(table, dict):
+        raise ctx.error("effects", f"expected a table of effects, got {table!r}")
+    effects = {}
+    for name, settings in table.items():
+        if name not in EFFECT_TYPES:
+            close = difflib.get_close_matches(name, list(EFFECT_TYPES), n=1)
+            hint = f"did you mean '{close[0]}'? " if close else ""
+            raise ctx.error(f"effects.{name}", f"unknown effect '{name}'; {hint}valid: "
+                                               f"{', '.join(EFFECT_TYPES)}")
+        if settings is False:
+            continue
+        if settings is True:
+            settings = {}
+        effects[name] = _build(ctx, EFFECT_TYPES[name], settings, f"effects.{name}")
+    return {name: effects[name] for name in EFFECT_TYPES if name in effects}
+
+
+SECTIONS = ("scene", "simulation", "cloth", "effects", "body", "render", "output")
+
+
+def load_scene(name_or_path: str, overrides: tuple[str, ...] = ()) -> Scene:
+    """Read, override and validate a scene. Raises ``InputError`` on any bad input."""
+    path = resolve_scene_path(name_or_path)
+    try:
+        raw = tomllib.loads(path.read_text(encoding="utf-8"))
+    except tomllib.TOMLDecodeError as error:
+        raise InputError(f"{path}: not valid TOML: {error}") from None
+    except (OSError, UnicodeDecodeError) as error:
+        raise InputError(f"{path}: cannot read: {error}") from None
+    overridden = []
+    for text in overrides:
+        parts, value = parse_override(text)
+        apply_override(raw, parts, value)
+        overridden.append(".".join(parts))
+    ctx = _Context(str(path), overridden)
+    for section in raw:
+        if section not in SECTIONS:
+            close = difflib.get_close_matches(section, SECTIONS, n=1)
+            hint = f"; did you mean '{close[0]}'?" if close else f"; valid: {', '.join(SECTIONS)}"
+            raise ctx.error(section, f"unknown section [{section}]{hint}")
+    info = _build(ctx, SceneInfo, raw.get("scene", {}), "scene")
+    if not info.name:
+        info = dataclasses.replace(info, name=path.stem)
+    cloth = _build(ctx, ClothConfig, raw.get("cloth", {}), "cloth")
+    body = _build(ctx, BodyConfig, raw["body"], "body") if "body" in raw else None
+    if cloth.pin == "waist" and cloth.shape != "skirt":
+        raise ctx.error("cloth.pin", "pin = \"waist\" needs shape = \"skirt\"")
+    if cloth.shape == "skirt" and cloth.pin not in ("waist", "none"):
+        raise ctx.error("cloth.pin", f"a skirt is pinned at \"waist\" or \"none\", got "
+                                     f"{cloth.pin!r}")
+    if not cloth.springs:
+        raise ctx.error("cloth.springs", "needs at least one spring family, e.g. [\"stretch\"]")
+    scene = Scene(
+        path=str(path),
+        scene=info,
+        simulation=_build(ctx, SimulationConfig, raw.get("simulation", {}), "simulation"),
+        cloth=cloth,
+        effects=_build_effects(ctx, raw.get("effects", {})),
+        body=body,
+        render=_build(ctx, RenderConfig, raw.get("render", {}), "render"),
+        output=_build(ctx, OutputConfig, raw.get("output", {}), "output"),
+    )
+    if "collision" in scene.effects and scene.body is None:
+        raise ctx.error("effects.collision", "collision needs a [body] section")
+    return scene

@@ -1,0 +1,281 @@
+"""What each command-line command does; ``__main__`` only parses arguments and calls these."""
+
+import contextlib
+import dataclasses
+import json
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from taichi_cloth.output.checkpoint import (Checkpoint, load_checkpoint, remove_checkpoint, save_checkpoint,
+                         scene_fingerprint)
+from taichi_cloth.errors import InputError, UnstableError
+from taichi_cloth.output.files import (MeshSeries, copy_file, remove_stale_frames, seam_split, video_writer,
+                     read_png, write_json, write_material, write_png)
+from taichi_cloth.config.materials import PRESETS
+from taichi_cloth.output.progress import Progress
+from taichi_cloth.config.scene import Scene, load_scene, shipped_scene_names
+
+OUTPUT_ROOT = Path("output")
+FRAME_DIR = "frames"  # PNG frames, inside the output folder
+MESH_DIR = "meshes"
+
+
+def prepare_scene(scene_name: str, overrides: list[str], frames: int | None, arch: str | None):
+    """Load the scene with the common flags applied."""
+    extra = list(overrides or [])
+    if arch is not None:
+        extra.append(f"simulation.arch={arch}")
+    scene = load_scene(scene_name, tuple(extra))
+    if frames is not None and frames < 1:
+        raise InputError(f"--frames {frames}: must be at least 1")
+    return scene, frames if frames is not None else scene.frame_count
+
+
+def output_dir(scene: Scene, out: str | None) -> Path:
+    """--out, else [output].dir, else output/<scene>."""
+    if out:
+        return Path(out)
+    if scene.output.dir:
+        return Path(scene.output.dir)
+    return OUTPUT_ROOT / scene.name
+
+
+def check_writable(directory: Path, flag: str) -> None:
+    """Fail early, before simulating, if ``directory`` cannot be created or written: the nearest
+    existing ancestor must be a folder in which a temporary folder can be made (and is removed
+    again, so nothing is left behind; permission bits alone say nothing for root)."""
+    existing = directory
+    while not existing.exists():
+        existing = existing.parent
+    if not existing.is_dir():
+        raise InputError(f"{flag} {directory}: {existing} is not a folder")
+    try:
+        os.rmdir(tempfile.mkdtemp(prefix=".write-check-", dir=existing))
+    except OSError as error:
+        raise InputError(f"{flag} {directory}: cannot write in {existing} "
+                         f"({error.strerror})") from None
+
+
+def make_body_rig(scene: Scene):
+    """The body rig of a scene with a [body] section (None otherwise)."""
+    if scene.body is None:
+        return None
+    from taichi_cloth.physics.rig import BodyRig
+    return BodyRig(scene)
+
+
+def check_size(value: int, flag: str) -> None:
+    """--width/--height: the renderer's pixel range."""
+    if not 16 <= value <= 8192:
+        raise InputError(f"{flag} {value}: must be between 16 and 8192 pixels")
+
+
+def mesh_series(scene: Scene, simulation, directory: Path, formats, body_meshes: bool) -> list:
+    """(MeshSeries, points(t) → (V, 3) m) for the cloth and, if asked and present, the body."""
+    from taichi_cloth.render.texture import texture_path
+    if not formats:
+        return []
+    folder = directory / MESH_DIR
+    source, uvs, triangles = seam_split(simulation.garment)
+    image = texture_path(scene)
+    if "obj" in formats:
+        if image is not None:
+            copy_file(image, folder / image.name)
+        write_material(folder / "cloth.mtl", "cloth", scene.render.cloth_color,
+                       image.name if image is not None else "")
+    cloth = MeshSeries(folder, "cloth", formats, simulation.garment.triangles,
+                       (source, uvs * scene.render.texture_repeat, triangles), material=True)
+    series = [(cloth, lambda t: simulation.positions())]
+    if body_meshes and simulation.body_rig is not None:
+        from taichi_cloth.render.surfaces import BodySurface
+        surface = BodySurface(simulation.body_rig.body)
+
+        def body_points(t):
+            surface.update(t)
+            return surface.points()
+
+        series.append((MeshSeries(folder, "body", formats, surface.triangles), body_points))
+    return series
+
+
+def run_scene(scene: Scene, frame_count: int, directory: Path, quiet: bool,
+              size: tuple[int, int] | None = None, video: str = "", meshes=(),
+              body_meshes: bool = False, resume: bool = False) -> int:
+    """Simulate ``frame_count`` frames; per frame render a PNG and a video frame (when ``size``
+    is given) and write meshes; then stats.json and a one-line summary. An interrupted or
+    unstable run still leaves stats.json for the frames done (and, interrupted, a checkpoint that
+    ``resume`` continues from)."""
+    from taichi_cloth.physics.simulation import FrameMetrics, RunRecord, Simulation
+    check_writable(directory, "--out")
+    simulation = Simulation(scene, make_body_rig(scene))
+    record = RunRecord()
+    first_frame = 0
+    if resume:
+        if "xdmf" in meshes:
+            raise InputError("--resume: an XDMF series cannot be continued; run again without "
+                             "--resume, or without xdmf")
+        checkpoint = load_checkpoint(directory, scene)
+        first_frame = restore(simulation, checkpoint)
+        previous = json.loads((directory / "stats.json").read_text())["per_frame"]
+        record.frames = [FrameMetrics(**frame) for frame in previous[:first_frame]]
+        record.retries = checkpoint.retries
+        record.cg_iterations = checkpoint.cg_iterations.tolist()
+        if first_frame >= frame_count:
+            raise InputError(f"--resume: frames 0–{first_frame - 1} are done already; ask for "
+                             f"more with --frames")
+    finished = {}  # the last whole frame: its index and host copies of its state
+    with contextlib.ExitStack() as stack:
+        renderer = append_video = None
+        if size is not None:
+            from taichi_cloth.render.renderer import Renderer
+            body = simulation.body_rig.body if simulation.body_rig is not None else None
+            renderer = stack.enter_context(Renderer(scene, simulation.garment, body, *size))
+            if video:
+                append_video = stack.enter_context(video_writer(
+                    directory / f"{scene.name}.{video}", video, scene.scene.fps))
+                for frame in range(first_frame):
+                    append_video(read_png(directory / FRAME_DIR / f"frame_{frame:05d}.png"))
+        series = mesh_series(scene, simulation, directory, meshes, body_meshes)
+        progress = stack.enter_context(Progress(scene.name, frame_count - first_frame, quiet))
+        seconds = {"render": 0.0, "export": 0.0}
+
+        def on_frame(frame, metrics):
+            t = simulation.frame_time(frame)
+            started = time.perf_counter()
+            if renderer is not None:
+                image = renderer.draw(simulation.state_in.x, t)
+                write_png(directory / FRAME_DIR / f"frame_{frame:05d}.png", image)
+                if append_video is not None:
+                    append_video(image)
+            rendered = time.perf_counter()
+            for mesh, points in series:
+                mesh.append(frame, t, points(t))
+            seconds["render"] += rendered - started
+            seconds["export"] += time.perf_counter() - rendered
+            finished.update(frame=frame, positions=simulation.positions(),
+                            velocities=simulation.state_in.v.to_numpy(),
+                            integrator_memory=simulation.integrator.memory())
+            progress.update(t)
+
+        try:
+            simulation.run(frame_count, on_frame, record, first_frame)
+        except (KeyboardInterrupt, SystemExit, UnstableError) as stop:
+            keep_partial_run(simulation, record, directory, finished, stop)
+            raise
+        for mesh, _ in series:
+            mesh.finish()
+    if renderer is not None:
+        record.wall_seconds["render"] = seconds["render"]
+        remove_stale_frames(directory / FRAME_DIR, "frame", frame_count)
+    if series:
+        record.wall_seconds["export"] = seconds["export"]
+        for mesh, _ in series:
+            remove_stale_frames(directory / MESH_DIR, mesh.name, frame_count)
+    stats = simulation.stats(record)
+    if first_frame:
+        stats["resumed_at_frame"] = first_frame
+    write_json(directory / "stats.json", stats)
+    remove_checkpoint(directory)
+    if not quiet:
+        print(summary(stats, directory))
+    return 0
+
+
+def restore(simulation, checkpoint) -> int:
+    """Put the checkpoint's state and time step into ``simulation``; returns the next frame."""
+    real = simulation.model.numpy_real
+    simulation.state_in.x.from_numpy(checkpoint.positions.astype(real))
+    simulation.state_in.v.from_numpy(checkpoint.velocities.astype(real))
+    simulation.time_step = dataclasses.replace(simulation.time_step, dt=checkpoint.dt,
+                                               substeps_per_frame=checkpoint.substeps_per_frame)
+    simulation.integrator.restore_memory(checkpoint.integrator_memory)
+    return checkpoint.next_frame
+
+
+def keep_partial_run(simulation, record, directory: Path, finished: dict, stop) -> None:
+    """After a stop: stats.json for the whole frames done (marked ``stopped``) and, when
+    interrupted (not unstable), a checkpoint and how to resume on stderr."""
+    if not finished:
+        return
+    done = finished["frame"] + 1
+    record.frames = record.frames[:done]
+    stats = simulation.stats(record)
+    unstable = isinstance(stop, UnstableError)
+    stats["stopped"] = "unstable" if unstable else "interrupted"
+    write_json(directory / "stats.json", stats)
+    if unstable:
+        return
+    save_checkpoint(directory, Checkpoint(
+        next_frame=done, positions=finished["positions"], velocities=finished["velocities"],
+        dt=simulation.time_step.dt, substeps_per_frame=simulation.time_step.substeps_per_frame,
+        retries=record.retries, fingerprint=scene_fingerprint(simulation.scene),
+        cg_iterations=np.array(record.cg_iterations, np.int64),
+        integrator_memory=finished["integrator_memory"]))
+    command = " ".join(["python -m taichi_cloth", *sys.argv[1:]])
+    sys.stderr.write(f"stopped after frame {done - 1}: frames 0–{done - 1} and stats.json are "
+                     f"in {directory}; to continue: {command} --resume\n")
+
+
+def summary(stats: dict, directory: Path) -> str:
+    """One line: frames, integrator and dt, strain and penetration, seconds per phase, where."""
+    seconds = ", ".join(f"{phase} {value:.2f} s" for phase, value in stats["wall_seconds"].items())
+    step = stats["time_step"]
+    auto = ""
+    if step["requested"] == "auto":
+        bound = "none" if step["stable_dt"] is None else f"{step['stable_dt']:.3g} s"
+        auto = f"auto: ω_max {step['omega_max']:.4g} rad/s, stability bound {bound}; "
+    retries = f", {stats['retries']} halvings" if stats["retries"] else ""
+    return (f"{stats['scene']}: {stats['frames']} frames, {stats['integrator']} at dt = "
+            f"{stats['dt']:.6g} s ({auto}{stats['substeps_per_frame']} substeps/frame"
+            f"{retries}), max strain "
+            f"{stats['max_strain']:.4f}, max penetration {stats['max_penetration'] * 1000:.2f} mm; "
+            f"{seconds} → {directory}")
+
+
+def simulate(scene_name: str, overrides: list[str], frames: int | None, out: str | None,
+             arch: str | None, quiet: bool, meshes=None, body_meshes: bool = False,
+             resume: bool = False) -> int:
+    """Physics only: run the scene and write stats.json (and meshes when asked)."""
+    scene, frame_count = prepare_scene(scene_name, overrides, frames, arch)
+    return run_scene(scene, frame_count, output_dir(scene, out), quiet,
+                     meshes=scene.output.meshes if meshes is None else meshes,
+                     body_meshes=body_meshes or scene.output.body_meshes, resume=resume)
+
+
+def render(scene_name: str, overrides: list[str], frames: int | None, out: str | None,
+           arch: str | None, quiet: bool, width: int | None = None, height: int | None = None,
+           video: str | None = None, meshes=None, body_meshes: bool = False,
+           resume: bool = False) -> int:
+    """Simulate and write PNG frames (headless GGUI), and a video and meshes when asked."""
+    for value, flag in ((width, "--width"), (height, "--height")):
+        if value is not None:
+            check_size(value, flag)
+    scene, frame_count = prepare_scene(scene_name, overrides, frames, arch)
+    size = (width or scene.render.width, height or scene.render.height)
+    return run_scene(scene, frame_count, output_dir(scene, out), quiet, size,
+                     video=scene.output.video if video is None else video,
+                     meshes=scene.output.meshes if meshes is None else meshes,
+                     body_meshes=body_meshes or scene.output.body_meshes, resume=resume)
+
+
+def list_scenes() -> int:
+    for name in shipped_scene_names():
+        scene = load_scene(name)
+        print(f"{name:12s} {scene.scene.description}")
+    return 0
+
+
+def list_materials() -> int:
+    print(f"{'name':10s} {'density':>9s} {'stretch':>9s} {'shear':>7s} {'bend':>9s} "
+          f"{'damping':>8s} {'thick':>6s}")
+    print(f"{'':10s} {'kg/m²':>9s} {'N/m':>9s} {'N/m':>7s} {'N·m':>9s} {'s':>8s} {'mm':>6s}")
+    for material in PRESETS.values():
+        print(f"{material.name:10s} {material.density:9.3f} {material.stretch_stiffness:9.0f} "
+              f"{material.shear_stiffness:7.1f} {material.bend_stiffness:9.2e} "
+              f"{material.damping:8.1e} {material.thickness * 1000:6.2f}  {material.description}")
+    return 0

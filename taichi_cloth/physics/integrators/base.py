@@ -1,0 +1,139 @@
+"""What every integrator shares: running substeps, several per kernel launch.
+
+A Python call of a Taichi kernel costs tens of microseconds, more than a small cloth's whole
+substep, and every parallel loop costs a hand-off to the thread pool and back. An integrator
+therefore writes its substep as a ``@ti.func`` of loops (``Forces.prepare``'s passes, then its
+particle updates) and runs many per launch, in one of two ways:
+
+- parallel (large cloth): ``_advance`` unrolls ``substep_batch`` substeps with ``ti.static``, each
+  loop a parallel loop over the particles;
+- serial (cloth of at most ``serial_particle_limit`` particles, where the hand-offs cost more
+  than a second core gains): ``_advance_serial`` runs a whole frame's substeps in one launch, a
+  serial loop over substeps around serial particle loops, on one thread.
+
+Substep k reads state ``a`` and writes ``b`` when k is even, the reverse when odd; it is also
+told ``k % 2``, the packed copy (``forces.pack``) that holds its input when the integrator carries
+a packed state from substep to substep, which ``begin_launch`` fills at the start of a launch
+(and ``end_launch`` may unpack at its end).
+An optional ``post_step`` (the contact projection) runs after each substep.
+"""
+
+import taichi as ti
+
+from taichi_cloth.physics.forces import Forces
+
+# Measured with ``bench`` (symplectic, reference sheet): one thread 8 ns per particle-substep at
+# every size, two threads 9.7 ns at 128² (each parallel loop costs ~40 µs of thread hand-off on
+# this VM), 6.3 ns at 256², 5.2 ns at 512². Below this count one thread wins; an integrator with
+# more work per particle sets its own ``serial_particle_limit``.
+SERIAL_PARTICLE_LIMIT = 32768
+
+
+@ti.data_oriented
+class Integrator:
+    """Base of the integrators: subclasses define ``substep(state_in, state_out, t, dt,
+    buffer)`` and may define ``begin_launch(state)``."""
+
+    name = ""
+    packs_springs = False  # one force evaluation per substep: worth the SIMD spring pass
+    substep_batch = 2  # parallel substeps per kernel launch (each unrolled copy adds compile time)
+    serial_particle_limit = SERIAL_PARTICLE_LIMIT  # cloth this small runs on one thread
+
+    def __init__(self, forces: Forces, post_step=None):
+        """post_step: an object with a ``@ti.func apply(state, t)`` run after every substep."""
+        self.forces = forces
+        self.model = forces.model
+        self.post_step = post_step
+        self.has_post_step = post_step is not None
+        self.serial = self.model.particle_count <= self.serial_particle_limit
+
+    def memory(self) -> dict:
+        """Host copies of what the integrator carries from step to step besides the state
+        (NumPy arrays by name; none here), for a checkpoint."""
+        return {}
+
+    def restore_memory(self, memory: dict) -> None:
+        """Put back what ``memory`` returned (a resumed run then takes the very same steps)."""
+
+    def launch_counts(self, count: int) -> list[int]:
+        """Substeps per kernel launch for ``count`` substeps."""
+        if self.serial:
+            return [count]
+        batch = self.substep_batch
+        return [batch] * (count // batch) + [1] * (count % batch)
+
+    def kernel_variant(self, count: int, state_a, state_b):
+        """Which compiled kernel a launch of ``count`` substeps from ``state_a`` runs (the first
+        launch of each compiles it). In parallel mode the states are template arguments, so each
+        order of the pair is a kernel of its own; the serial kernel orders them itself."""
+        return "serial" if self.serial else (count, id(state_a) < id(state_b))
+
+    def step(self, state_in, state_out, t: float, dt: float) -> None:
+        """One substep from state_in at time t [s] into state_out."""
+        self._launch(state_in, state_out, t, dt, 1)
+
+    def advance(self, state_a, state_b, t: float, dt: float, count: int):
+        """``count`` substeps from state_a at time t; returns (newest state, the other one)."""
+        done = 0
+        for launch in self.launch_counts(count):
+            self._launch(state_a, state_b, t + done * dt, dt, launch)
+            if launch % 2:
+                state_a, state_b = state_b, state_a
+            done += launch
+        return state_a, state_b
+
+    def _launch(self, a, b, t: float, dt: float, count: int) -> None:
+        if not self.serial:
+            self._advance(a, b, t, dt, count)
+        elif id(a) < id(b):  # one compiled kernel per pair of states, whichever is newest
+            self._advance_serial(a, b, t, dt, count, 0)
+        else:
+            self._advance_serial(b, a, t, dt, count, 1)
+
+    @ti.kernel
+    def _advance(self, a: ti.template(), b: ti.template(), t: ti.f64, dt: ti.f64,
+                 count: ti.template()):
+        self.begin_launch(a)
+        for k in ti.static(range(count)):
+            if ti.static(k % 2 == 0):
+                self._substep_and_post(a, b, t + k * dt, dt, k % 2)
+            else:
+                self._substep_and_post(b, a, t + k * dt, dt, k % 2)
+        if ti.static(count % 2 == 0):
+            self.end_launch(a, 0)
+        else:
+            self.end_launch(b, 1)
+
+    @ti.kernel
+    def _advance_serial(self, a: ti.template(), b: ti.template(), t: ti.f64, dt: ti.f64,
+                        count: ti.i32, start_in_b: ti.i32):
+        """Substeps from a (start_in_b = 0) or from b (1), alternating."""
+        if start_in_b == 0:  # loops under a branch run serially
+            self.begin_launch(a)
+        else:
+            self.begin_launch(b)
+        ti.loop_config(serialize=True)
+        for k in range(count):
+            if (k + start_in_b) % 2 == 0:
+                self._substep_and_post(a, b, t + k * dt, dt, k % 2)
+            else:
+                self._substep_and_post(b, a, t + k * dt, dt, k % 2)
+        if (count + start_in_b) % 2 == 0:
+            self.end_launch(a, count % 2)
+        else:
+            self.end_launch(b, count % 2)
+
+    @ti.func
+    def begin_launch(self, state):
+        """What a launch does once before its substeps, from its input state: nothing here."""
+
+    @ti.func
+    def end_launch(self, state, buffer):
+        """What a launch does once after its substeps, into its newest state (held by packed
+        copy ``buffer``): nothing here."""
+
+    @ti.func
+    def _substep_and_post(self, state_in, state_out, t, dt, buffer):
+        self.substep(state_in, state_out, t, dt, buffer)
+        if ti.static(self.has_post_step):
+            self.post_step.apply(state_out, t + dt)

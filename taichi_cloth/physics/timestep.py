@@ -1,0 +1,92 @@
+"""Choosing the time step: the scene's dt, or ``dt = "auto"`` from the cloth's highest frequency.
+
+The highest angular frequency ω_max of the linearised cloth at rest is the square root of the
+largest eigenvalue of M⁻¹K over the free particles, K the spring stiffness matrix (a spring at rest
+along unit n contributes k·n·nᵀ blocks). Power iteration on M⁻¹K estimates it; Gershgorin
+(ω² ≤ max_i 2·Σ_{s∋i} k_s / m_i, ORACLES.md) bounds it from above. Penalty contact adds its
+stiffness per unit mass k̂ to ω², and its own modes (the normal spring with its damping ratio, and
+the friction damper) bound the step too. The step is then ``safety`` × the integrator's stability bound
+for all modes up to ω_max with the springs' Rayleigh damping (``integrators.stability``).
+Backward Euler is stable at any step, so its step is chosen for accuracy instead:
+``IMPLICIT_FRAME_FRACTION`` of a frame (1/60 s at 30 fps), the body's motion resolved.
+A frame is then split into a whole number of equal substeps not longer than that.
+"""
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from taichi_cloth.errors import InputError
+from taichi_cloth.physics.integrators.stability import largest_stable_step
+
+IMPLICIT_FRAME_FRACTION = 0.5
+
+
+@dataclass(frozen=True)
+class TimeStep:
+    """dt [s] and substeps per frame; for ``auto`` also the estimate behind it: ω_max [rad/s] and
+    the integrator's stability bound [s] (None when it has none: backward Euler)."""
+
+    dt: float
+    substeps_per_frame: int
+    requested: float | str
+    omega_max: float | None = None
+    stable_dt: float | None = None
+
+    def report(self) -> dict:
+        return {"requested": self.requested, "omega_max": self.omega_max,
+                "stable_dt": self.stable_dt}
+
+
+def stiffness_product(ends, stiffness, directions, u):
+    """K·u for springs at rest (blocks k·n·nᵀ): minus the linear elastic force of displacements u.
+    (K·u)_i = Σ_{springs i–j} k·n·(n·(u_i − u_j))."""
+    along = np.einsum("sk,sk->s", u[ends[:, 1]] - u[ends[:, 0]], directions) * stiffness
+    product = np.zeros_like(u)
+    np.add.at(product, ends[:, 0], -along[:, None] * directions)
+    np.add.at(product, ends[:, 1], along[:, None] * directions)
+    return product
+
+
+def highest_frequency(positions, ends, stiffness, mass, free, iterations: int = 60) -> float:
+    """ω_max [rad/s]: power iteration on M⁻¹K restricted to free particles, capped by the
+    Gershgorin bound and never below the iteration's own estimate."""
+    directions = positions[ends[:, 1]] - positions[ends[:, 0]]
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    row_sum = np.zeros(len(mass))
+    np.add.at(row_sum, ends[:, 0], stiffness)
+    np.add.at(row_sum, ends[:, 1], stiffness)
+    gershgorin = float(np.max(np.where(free, 2.0 * row_sum / mass, 0.0)))
+    rng = np.random.default_rng(0)
+    u = rng.standard_normal(positions.shape) * free[:, None]
+    estimate = 0.0
+    for _ in range(iterations):
+        u /= np.linalg.norm(u)
+        w = stiffness_product(ends, stiffness, directions, u) / mass[:, None] * free[:, None]
+        estimate = float(np.sum(u * w))
+        u = w
+    # The Rayleigh quotient approaches λ_max from below; 10 % headroom covers the rest.
+    return math.sqrt(max(min(1.1 * estimate, gershgorin), estimate, 0.0))
+
+
+def choose_time_step(requested, frame_time: float, integrator: str, positions, ends, stiffness,
+                     mass, free, damping_time: float, contact_modes, safety: float) -> TimeStep:
+    """The substep for a frame of ``frame_time`` [s]; ``requested`` is seconds or "auto".
+    contact_modes: (k̂ [1/s²], ζ) of each declared contact (collision, ground)."""
+    if requested != "auto":
+        substeps = max(1, math.ceil(frame_time / requested - 1e-9))
+        return TimeStep(frame_time / substeps, substeps, requested)
+    omega_spring = highest_frequency(positions, ends, stiffness, mass, free)
+    contact_stiffness = max((k for k, _ in contact_modes), default=0.0)
+    omega_max = math.sqrt(omega_spring ** 2 + contact_stiffness)
+    if integrator == "implicit":
+        substeps = max(1, math.ceil(1.0 / IMPLICIT_FRAME_FRACTION - 1e-9))
+        return TimeStep(frame_time / substeps, substeps, "auto", omega_max, None)
+    stable = largest_stable_step(integrator, omega_max, damping_time, contact_modes)
+    if stable <= 0.0:
+        raise InputError(f"simulation.dt: \"auto\" finds no stable step for {integrator} "
+                         f"(explicit Euler needs [effects.damping]); give dt in seconds or "
+                         f"choose another integrator")
+    substeps = max(1, math.ceil(frame_time / (safety * stable) - 1e-9))
+    return TimeStep(frame_time / substeps, substeps, "auto", omega_max, stable)

@@ -1,0 +1,141 @@
+"""Headless frames of a scene through Taichi's GGUI (Vulkan; lavapipe where there is no GPU).
+
+A ``Renderer`` owns one hidden ``ti.ui.Window`` of the frame size, a camera from ``[render]``
+(position, look-at point, vertical field of view), an ambient light plus a key light above the
+camera's right shoulder and a fill light at its left, the floor, the cloth as a lit two-sided mesh
+with smooth per-vertex normals and its texture as per-vertex colours, and the body's capsules.
+GGUI's lighting is Lambertian without falloff: colour × (ambient + Σ light |n · l|).
+
+GGUI writes ``imgui.ini`` into the working directory when its window is destroyed; ``close``
+destroys it from inside a temporary folder, so the file never lands where the user ran us.
+"""
+
+import contextlib
+import os
+import tempfile
+
+import numpy as np
+import taichi as ti
+
+from taichi_cloth.errors import InputError
+from taichi_cloth.config.scene import Scene
+from taichi_cloth.render.surfaces import BodySurface, ClothSurface, GroundSurface
+from taichi_cloth.render.texture import load_texture, sample_texture, texture_path
+
+VULKAN_PACKAGES = "libvulkan1 mesa-vulkan-drivers"
+FILL_FRACTION = 1.0 / 3.0  # fill light intensity relative to the key light
+
+
+def open_window(width: int, height: int) -> ti.ui.Window:
+    """A hidden GGUI window; a missing Vulkan driver is bad input (exit 2) that names the fix."""
+    try:
+        return ti.ui.Window("taichi_cloth", (width, height), show_window=False)
+    except RuntimeError as error:
+        raise InputError(f"render: no Vulkan device for headless rendering ({error}); install "
+                         f"the Debian packages {VULKAN_PACKAGES} (make setup does it as root)"
+                         ) from None
+
+
+@contextlib.contextmanager
+def working_directory(path: str):
+    """Run the block with ``path`` as the current directory, then go back."""
+    previous = os.getcwd()
+    os.chdir(path)
+    try:
+        yield
+    finally:
+        os.chdir(previous)
+
+
+def light_positions(position: np.ndarray, lookat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Key and fill light positions [m]: the key up and to the right of the camera, the fill
+    low on its left, both at about the camera's distance from what it looks at."""
+    forward = lookat - position
+    distance = np.linalg.norm(forward)
+    forward /= distance
+    right = np.cross(forward, [0.0, 1.0, 0.0])
+    right /= max(np.linalg.norm(right), 1e-9)
+    key = position + distance * (0.9 * right + 0.9 * np.array([0.0, 1.0, 0.0]) - 0.2 * forward)
+    fill = position + distance * (-1.0 * right + 0.1 * np.array([0.0, 1.0, 0.0]))
+    return key, fill
+
+
+def illumination(normals: np.ndarray, points: np.ndarray, lights: list, ambient: float):
+    """GGUI's lighting factor (V,) for unit normals and points (V, 3): ambient + Σ I |n · l|."""
+    total = np.full(len(points), ambient)
+    for position, intensity in lights:
+        direction = position - points
+        direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+        total += intensity * np.abs(np.sum(direction * normals, axis=1))
+    return total
+
+
+class Renderer:
+    """Draws one frame at a time of a scene's cloth and body into an RGB image."""
+
+    def __init__(self, scene: Scene, garment, body, width: int, height: int):
+        """garment: the simulation's ``Garment``; body: a ``body.Body`` or None."""
+        config = scene.render
+        self.config = config
+        position, lookat = np.array(config.camera_position), np.array(config.camera_lookat)
+        key, fill = light_positions(position, lookat)
+        self.lights = [(key, config.light), (fill, config.light * FILL_FRACTION)]
+        self.cloth = ClothSurface(garment, config.subdivision)
+        image_path = texture_path(scene)
+        if image_path is None:
+            self.cloth.set_colors(np.broadcast_to(config.cloth_color, (self.cloth.vertex_count, 3)))
+        else:
+            self.cloth.set_colors(sample_texture(load_texture(image_path), self.cloth.uvs,
+                                                 self.cloth.uv_footprint, config.texture_repeat))
+        self.body = BodySurface(body, config.body_color) if body is not None else None
+        self.ground = None
+        if config.ground:
+            ground = scene.effects.get("ground")
+            self.ground = GroundSurface(ground.height if ground is not None else 0.0)
+            self.ground.shade(key, lambda normals, points: illumination(
+                normals, points, self.lights, config.ambient), config.background)
+
+        self.window = open_window(width, height)  # last: nothing after it can fail unclosed
+        self.canvas = self.window.get_canvas()
+        self.scene_3d = self.window.get_scene()
+        self.camera = ti.ui.Camera()
+        self.camera.position(*position)
+        self.camera.lookat(*lookat)
+        self.camera.up(0.0, 1.0, 0.0)
+        self.camera.fov(config.fov)
+
+    def draw(self, positions, t: float) -> np.ndarray:
+        """The frame with the cloth at ``positions`` (the simulation's x field) and the body at
+        time ``t`` [s], as an (height, width, 3) uint8 image."""
+        self.cloth.update(positions)
+        self.canvas.set_background_color(tuple(self.config.background))
+        self.scene_3d.set_camera(self.camera)
+        self.scene_3d.ambient_light((self.config.ambient,) * 3)
+        for position, intensity in self.lights:
+            self.scene_3d.point_light(tuple(position), (intensity,) * 3)
+        if self.body is not None:
+            self.body.update(t)
+            self._mesh(self.body, two_sided=False)
+            if self.ground is not None:
+                self.ground.cast_shadows(self.body)
+        if self.ground is not None:
+            self._mesh(self.ground, two_sided=False)
+        self._mesh(self.cloth, two_sided=True)
+        self.canvas.scene(self.scene_3d)
+        image = self.window.get_image_buffer_as_numpy()
+        return np.round(np.clip(image[:, ::-1, :3].transpose(1, 0, 2), 0, 1) * 255).astype(np.uint8)
+
+    def _mesh(self, surface, two_sided: bool) -> None:
+        self.scene_3d.mesh(surface.vertices, indices=surface.indices, normals=surface.normals,
+                           per_vertex_color=surface.colors, two_sided=two_sided)
+
+    def close(self) -> None:
+        """Destroy the window (GGUI's imgui.ini goes to a temporary folder)."""
+        with tempfile.TemporaryDirectory() as scratch, working_directory(scratch):
+            self.window.destroy()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *_):
+        self.close()

@@ -1,0 +1,469 @@
+"""``python -m taichi_cloth bench``: how fast a substep is, measured (never asserted in a test).
+
+Reference problem (the sizes table), chosen so the figures compare with other simulators'
+published cloth benchmarks: a square sheet of n × n particles 1 cm apart, lying flat and pinned
+along one edge, stretch + shear + bend springs (12 per interior particle), gravity only, no
+dashpots, float32, dt = 1/1920 s. Its fabric (130 g/m², 10 N/m stretch, 2 N/m shear, 1 N/m bend
+springs) keeps symplectic Euler stable at that step for every n, since a square grid's spring
+constants and the particle mass do not depend on n (``materials.py``). The sheet swings down.
+
+Every figure is a rate over timed repeats of at least ``--seconds`` each, after a warm-up that
+compiles the kernels (compile time excluded); the table shows the median repeat. ``NumpyCloth``
+runs the same symplectic Euler step in NumPy as the baseline; the tests use it as the oracle of
+the force kernel.
+
+Scene parts (``--scene``, default ``hula``): the cost of each effect, from the scene with and
+without it (an effect the scene lacks is added with its defaults), the spring and contact passes
+on their own, and the whole scene's simulated seconds per wall second (metrics and body posing
+included, compilation not).
+"""
+
+import statistics
+import time
+
+import numpy as np
+import taichi as ti
+
+from taichi_cloth.effects.aerodynamics import Gravity
+from taichi_cloth.physics.forces import Forces
+from taichi_cloth.cloth.garment import build_garment
+from taichi_cloth.physics.integrators import INTEGRATORS, make_integrator
+from taichi_cloth.config.materials import Material
+from taichi_cloth.physics.model import Model
+from taichi_cloth.runtime import start_taichi
+from taichi_cloth.config.scene import EFFECT_TYPES, ClothConfig, GravityEffect, load_scene
+
+REFERENCE_SPACING_M = 0.01
+REFERENCE_DT_S = 1.0 / 1920.0
+REFERENCE_MATERIAL = Material("reference", density=0.13, stretch_stiffness=10.0,
+                              shear_stiffness=2.0, bend_stiffness=1e-4, damping=0.0,
+                              thickness=4e-4, description="bench: stable at 1/1920 s")
+DEFAULT_SIZES = (32, 64, 128, 256, 512)
+DEFAULT_INTEGRATORS = ("symplectic", "euler", "rk4", "implicit")
+IMPLICIT_FRAME_SIZE = 64
+IMPLICIT_FRAME_DT_S = 1.0 / 60.0
+
+
+def reference_cloth(size: int) -> ClothConfig:
+    """The reference sheet of size × size particles."""
+    side = REFERENCE_SPACING_M * (size - 1)
+    return ClothConfig(shape="sheet", resolution=(size, size), size=(side, side), height=1.0,
+                       orientation="horizontal", pin="top-edge")
+
+
+def reference_model(size: int) -> Model:
+    """The reference sheet's model: float32, no dashpots."""
+    return Model(build_garment(reference_cloth(size), REFERENCE_MATERIAL), "f32", None)
+
+
+class NumpyCloth:
+    """The reference step in NumPy: spring and dashpot forces per spring, summed per particle
+    with ``bincount`` (f_i = Σ_s k_s (l − L)/l · d + c_s ((v_j − v_i)·d)/l² · d, d = x_j − x_i,
+    the formula of ``forces.py``), gravity m·g, then symplectic Euler v' = v + h·F/m,
+    x' = x + h·v'. Pinned particles keep their position, at rest."""
+
+    def __init__(self, model: Model, gravity: float):
+        self.model = model
+        self.first, self.second = model.host_spring_ends.T
+        self.rest_length = model.host_rest_length.astype(model.numpy_real)
+        self.stiffness = model.host_stiffness.astype(model.numpy_real)
+        self.damping = model.spring_damping.to_numpy() if model.has_dashpots else None
+        self.mass = model.particle_mass.to_numpy()
+        self.inv_mass = model.particle_inv_mass.to_numpy()
+        self.weight = np.zeros((model.particle_count, 3), model.numpy_real)
+        self.weight[:, 1] = -gravity * self.mass
+
+    def forces(self, x: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """Total force on every particle [N], shape (N, 3)."""
+        d = x[self.second] - x[self.first]
+        length = np.sqrt(np.einsum("sk,sk->s", d, d))
+        coefficient = self.stiffness * (length - self.rest_length) / length
+        if self.damping is not None:
+            relative = v[self.second] - v[self.first]
+            coefficient += self.damping * np.einsum("sk,sk->s", relative, d) / length ** 2
+        spring = coefficient[:, None] * d
+        total = self.weight.copy()
+        count = self.model.particle_count
+        for c in range(3):
+            total[:, c] += (np.bincount(self.first, spring[:, c], count)
+                            - np.bincount(self.second, spring[:, c], count))
+        return total
+
+    def step(self, x: np.ndarray, v: np.ndarray, dt: float):
+        """One symplectic Euler substep; returns the new (x, v)."""
+        h = self.model.numpy_real(dt)
+        v_new = v + h * self.inv_mass[:, None] * self.forces(x, v)
+        v_new[self.inv_mass == 0] = 0.0
+        return x + h * v_new, v_new
+
+
+def timed_rate(run_batch, units_per_batch: int, seconds: float, repeats: int) -> list[float]:
+    """Rates (units per second) of ``repeats`` timed repeats, each running batches for at
+    least ``seconds``; ``run_batch`` must finish its work (sync) before returning."""
+    rates = []
+    for _ in range(repeats):
+        done, started = 0, time.perf_counter()
+        while True:
+            run_batch()
+            done += units_per_batch
+            elapsed = time.perf_counter() - started
+            if elapsed >= seconds:
+                break
+        rates.append(done / elapsed)
+    return rates
+
+
+def substep_row(kind: str, integrator: str, size, particles: int, rates: list[float],
+                **extra) -> dict:
+    rate = statistics.median(rates)
+    return {"benchmark": kind, "integrator": integrator, "size": size, "particles": particles,
+            "substeps_per_second": rate, "particle_substeps_per_second": rate * particles,
+            "repeats": [round(r, 3) for r in rates], **extra}
+
+
+def bench_reference(size: int, integrator_name: str, seconds: float, repeats: int,
+                    dt: float = REFERENCE_DT_S) -> dict:
+    """The reference sheet with one integrator: substeps per second."""
+    model = reference_model(size)
+    forces = Forces(model, [Gravity(GravityEffect())], INTEGRATORS[integrator_name].packs_springs)
+    integrator = make_integrator(integrator_name, forces)
+    states = model.states(2)
+    batch = max(1, min(256, round(2e6 / model.particle_count)))
+    clock = [0.0]
+
+    def run_batch():
+        states[:] = integrator.advance(states[0], states[1], clock[0], dt, batch)
+        clock[0] += batch * dt
+        ti.sync()
+
+    started = time.perf_counter()
+    run_batch()  # compiles
+    compile_seconds = time.perf_counter() - started
+    run_batch()
+    rates = timed_rate(run_batch, batch, seconds, repeats)
+    finite = bool(np.isfinite(states[0].x.to_numpy()).all())
+    return substep_row("reference", integrator_name, size, model.particle_count, rates,
+                       dt=dt, finite=finite, compile_seconds=round(compile_seconds, 3),
+                       threads="serial" if getattr(integrator, "serial", False) else "parallel")
+
+
+def bench_numpy(size: int, seconds: float, repeats: int) -> dict:
+    """The reference sheet stepped by ``NumpyCloth``."""
+    model = reference_model(size)
+    cloth = NumpyCloth(model, GravityEffect().g)
+    state = [model.garment.positions.astype(np.float32),
+             np.zeros((model.particle_count, 3), np.float32)]
+
+    def run_batch():
+        state[:] = cloth.step(state[0], state[1], REFERENCE_DT_S)
+
+    run_batch()
+    rates = timed_rate(run_batch, 1, seconds, repeats)
+    return substep_row("reference", "numpy-symplectic", size, model.particle_count, rates,
+                       dt=REFERENCE_DT_S, finite=bool(np.isfinite(state[0]).all()))
+
+
+def scaling_exponent(rows: list[dict]) -> dict:
+    """Per integrator, p in (seconds per substep) ∝ particles^p by least squares on logs
+    (p = 1: cost linear in the particle count), and the seconds per particle-substep of the
+    largest size."""
+    fits = {}
+    for name in dict.fromkeys(r["integrator"] for r in rows):
+        own = [r for r in rows if r["integrator"] == name]
+        if len(own) < 2:
+            continue
+        log_n = np.log([r["particles"] for r in own])
+        log_cost = np.log([1.0 / r["substeps_per_second"] for r in own])
+        exponent = float(np.polyfit(log_n, log_cost, 1)[0])
+        largest = max(own, key=lambda r: r["particles"])
+        fits[name] = {"exponent": round(exponent, 3),
+                      "ns_per_particle_substep_at_largest":
+                          round(1e9 / largest["particle_substeps_per_second"], 3),
+                      "sizes": [r["size"] for r in own]}
+    return fits
+
+
+@ti.data_oriented
+class PassTimer:
+    """Kernels that run one pass of a simulation ``count`` times: the spring pass (grid
+    cloth: pack + SIMD stencil; otherwise the CSR gather) and the contact pass (pose the
+    capsules, then every particle's contact force). Loops are serial when the integrator's
+    are, like the substep they come from."""
+
+    def __init__(self, simulation):
+        self.simulation = simulation
+        self.forces = simulation.forces
+        self.model = simulation.model
+        self.serial = simulation.integrator.serial
+        self.out = ti.Vector.field(3, self.model.real, self.model.particle_count)
+        rig = simulation.body_rig
+        self.contact = rig.contact if rig is not None else None
+        self.has_contact = self.contact is not None
+
+    @ti.func
+    def _springs(self, state):
+        if ti.static(self.forces.has_grid):
+            self.forces.prepare_springs(state.x, state.v)
+        else:
+            for i_p in range(self.model.particle_count):
+                self.out[i_p] = self.forces.spring_force(state.x, state.v, i_p)
+
+    @ti.func
+    def _contact(self, state, t):
+        if ti.static(self.has_contact):
+            self.contact.prepare(t)
+            for i_p in range(self.model.particle_count):
+                self.out[i_p] = self.contact.force(self.model, state.x, state.v, i_p,
+                                                   ti.cast(t, self.model.real))
+
+    @ti.kernel
+    def _run(self, state: ti.template(), t: ti.f64, count: ti.i32, which: ti.template()):
+        ti.loop_config(serialize=ti.static(self.serial))
+        for _ in range(count):
+            if ti.static(which == "springs"):
+                self._springs(state)
+            else:
+                self._contact(state, t)
+
+    def seconds_per_pass(self, which: str, seconds: float, repeats: int) -> float:
+        state = self.simulation.state_in
+        t = 0.5 / self.simulation.scene.scene.fps
+        count = 64 if self.serial else 1
+
+        def run_batch():
+            self._run(state, t, count, which)
+            ti.sync()
+
+        run_batch()
+        return 1.0 / statistics.median(timed_rate(run_batch, count, seconds, repeats))
+
+
+def scene_simulation(scene_name: str, overrides: tuple = ()):
+    """A Simulation of the scene (with its body, if any) after ``overrides``."""
+    from taichi_cloth.output.run import make_body_rig
+    from taichi_cloth.physics.simulation import Simulation
+    scene = load_scene(scene_name, overrides)
+    return Simulation(scene, make_body_rig(scene))
+
+
+def frame_rate(simulation, seconds: float, repeats: int) -> list[float]:
+    """Substeps per second through ``advance_frame`` (body posing included), warm-up first."""
+    from taichi_cloth.physics.simulation import RunRecord
+    record = RunRecord()
+    frame = [0]
+
+    def run_batch():
+        simulation.advance_frame(frame[0], record)
+        frame[0] += 1
+
+    run_batch()
+    run_batch()
+    return timed_rate(run_batch, simulation.time_step.substeps_per_frame, seconds, repeats)
+
+
+def bench_effects(scene_name: str, seconds: float, repeats: int) -> list[dict]:
+    """The cost of each effect: the scene with and without it (added with its defaults when the
+    scene lacks it), in microseconds per substep and nanoseconds per particle-substep."""
+    base = scene_simulation(scene_name)
+    base_rates = frame_rate(base, seconds, repeats)
+    base_rate = statistics.median(base_rates)
+    particles = base.model.particle_count
+    size = f"{base.garment.columns}x{base.garment.rows}"
+    integrator = base.scene.simulation.integrator
+    rows = [substep_row("scene", integrator, size, particles, base_rates,
+                        scene=scene_name, effects=base.effect_names)]
+    for name in EFFECT_TYPES:
+        declared = name in base.scene.effects
+        other = scene_simulation(scene_name,
+                                 (f"effects.{name}={'false' if declared else 'true'}",))
+        other_rates = frame_rate(other, seconds, repeats)
+        with_rate, without_rate = (base_rate, statistics.median(other_rates)) if declared \
+            else (statistics.median(other_rates), base_rate)
+        cost = 1.0 / with_rate - 1.0 / without_rate
+        rows.append(substep_row("effect", integrator, size, particles, other_rates,
+                                scene=scene_name, effect=name, declared_in_scene=declared,
+                                substeps_per_second_with=with_rate,
+                                substeps_per_second_without=without_rate,
+                                cost_us_per_substep=round(1e6 * cost, 3),
+                                cost_ns_per_particle_substep=round(1e9 * cost / particles, 3)))
+    return rows
+
+
+def bench_passes(scene_name: str, seconds: float, repeats: int) -> dict:
+    """The spring pass and the contact pass of the scene on their own, seconds per pass."""
+    simulation = scene_simulation(scene_name)
+    timer = PassTimer(simulation)
+    springs = timer.seconds_per_pass("springs", seconds, repeats)
+    contact = timer.seconds_per_pass("contact", seconds, repeats) if timer.has_contact else 0.0
+    return {"benchmark": "passes", "scene": scene_name,
+            "integrator": simulation.scene.simulation.integrator,
+            "size": f"{simulation.garment.columns}x{simulation.garment.rows}",
+            "particles": simulation.model.particle_count,
+            "substeps_per_second": 1.0 / (springs + contact),
+            "particle_substeps_per_second": simulation.model.particle_count / (springs + contact),
+            "springs_us_per_substep": round(1e6 * springs, 3),
+            "contact_us_per_substep": round(1e6 * contact, 3)}
+
+
+def bench_scene_run(scene_name: str) -> dict:
+    """The whole scene, every frame, as ``simulate`` runs it: simulated seconds per wall
+    second, compilation excluded."""
+    simulation = scene_simulation(scene_name)
+    frames = simulation.scene.frame_count
+    started = time.perf_counter()
+    record = simulation.run(frames)
+    wall = time.perf_counter() - started - record.wall_seconds["compile"]
+    simulated = frames / simulation.scene.scene.fps
+    substeps = frames * simulation.time_step.substeps_per_frame
+    return {"benchmark": "scene-run", "scene": scene_name,
+            "integrator": simulation.scene.simulation.integrator,
+            "size": f"{simulation.garment.columns}x{simulation.garment.rows}",
+            "particles": simulation.model.particle_count,
+            "substeps_per_second": substeps / wall,
+            "particle_substeps_per_second": substeps * simulation.model.particle_count / wall,
+            "frames": frames, "dt": simulation.time_step.dt, "simulated_seconds": simulated,
+            "wall_seconds": round(wall, 3),
+            "compile_seconds": round(record.wall_seconds["compile"], 3),
+            "simulated_seconds_per_wall_second": simulated / wall}
+
+
+def bench_implicit_frames(seconds: float, repeats: int) -> dict:
+    """Backward Euler on the 64 × 64 reference sheet at dt = 1/60 s."""
+    row = bench_reference(IMPLICIT_FRAME_SIZE, "implicit", seconds, repeats, IMPLICIT_FRAME_DT_S)
+    row["benchmark"] = "implicit-large-step"
+    row["simulated_seconds_per_wall_second"] = row["substeps_per_second"] * IMPLICIT_FRAME_DT_S
+    return row
+
+
+def format_rate(value: float) -> str:
+    return f"{value:.3g}"
+
+
+def table(rows: list[dict]) -> str:
+    """The sizes table: particle-substeps per second, integrators across, sizes down."""
+    reference = [r for r in rows if r["benchmark"] == "reference"]
+    if not reference:
+        return ""
+    integrators = list(dict.fromkeys(r["integrator"] for r in reference))
+    sizes = list(dict.fromkeys(r["size"] for r in reference))
+    lines = ["particle-substeps per second (reference sheet, f32, dt = 1/1920 s; substeps/s in "
+             "brackets)",
+             f"{'size':>9} {'particles':>9} " + " ".join(f"{name:>22}" for name in integrators)]
+    for size in sizes:
+        cells = []
+        for name in integrators:
+            match = [r for r in reference if r["size"] == size and r["integrator"] == name]
+            cells.append(f"{format_rate(match[0]['particle_substeps_per_second'])} "
+                         f"({format_rate(match[0]['substeps_per_second'])})" if match else "-")
+        particles = next(r["particles"] for r in reference if r["size"] == size)
+        lines.append(f"{f'{size}x{size}':>9} {particles:>9} "
+                     + " ".join(f"{cell:>22}" for cell in cells))
+    return "\n".join(lines)
+
+
+def report(rows: list[dict], fits: dict) -> str:
+    """The console report: the sizes table, the scaling fits and the scene parts."""
+    parts = [table(rows)]
+    if fits:
+        parts.append("cost ∝ particles^p (least squares on logs): " + ", ".join(
+            f"{name} p = {fit['exponent']:.2f} ({fit['ns_per_particle_substep_at_largest']:.3g} "
+            f"ns per particle-substep at {fit['sizes'][-1]}²)" for name, fit in fits.items()))
+    for row in rows:
+        kind = row["benchmark"]
+        if kind == "scene":
+            parts.append(f"{row['scene']} ({row['size']}, {row['integrator']}, "
+                         f"{', '.join(row['effects'])}): "
+                         f"{format_rate(row['substeps_per_second'])} substeps/s")
+        elif kind == "effect":
+            state = "declared" if row["declared_in_scene"] else "added"
+            parts.append(f"  effect {row['effect']:<10} ({state}): "
+                         f"{row['cost_us_per_substep']:8.2f} µs per substep, "
+                         f"{row['cost_ns_per_particle_substep']:7.2f} ns per particle-substep")
+        elif kind == "passes":
+            parts.append(f"{row['scene']} passes: springs {row['springs_us_per_substep']:.2f} µs, "
+                         f"contact {row['contact_us_per_substep']:.2f} µs per substep")
+        elif kind == "scene-run":
+            parts.append(f"{row['scene']} whole run: {row['frames']} frames, "
+                         f"{row['simulated_seconds_per_wall_second']:.2f} simulated seconds per "
+                         f"wall second ({row['wall_seconds']:.2f} s wall, "
+                         f"{row['compile_seconds']:.2f} s compile not counted)")
+        elif kind == "implicit-large-step":
+            parts.append(f"implicit, {row['size']}x{row['size']} sheet, dt = 1/60 s: "
+                         f"{format_rate(row['substeps_per_second'])} steps/s = "
+                         f"{row['simulated_seconds_per_wall_second']:.2f} simulated seconds per "
+                         f"wall second")
+    return "\n".join(p for p in parts if p)
+
+
+def run_bench(sizes, integrators, scene_name, seconds: float, repeats: int, arch: str = "cpu",
+              progress=None, profile: bool = False) -> tuple[list[dict], dict]:
+    """Rows of every requested part and the scaling fits. ``sizes``/``integrators`` None and
+    ``scene_name`` None: everything (the default sizes and integrators, ``hula``, the implicit
+    large step); given sizes or integrators alone: the sizes table only; a scene alone: its
+    parts only."""
+    start_taichi(arch, kernel_profiler=profile)
+    everything = sizes is None and integrators is None and scene_name is None
+    rows = []
+    say = progress or (lambda message: None)
+    if everything or sizes is not None or integrators is not None:
+        for size in sizes or DEFAULT_SIZES:
+            for name in integrators or DEFAULT_INTEGRATORS:
+                say(f"{name} {size}x{size}")
+                rows.append(bench_reference(size, name, seconds, repeats))
+            say(f"numpy {size}x{size}")
+            rows.append(bench_numpy(size, seconds, repeats))
+    if everything or scene_name is not None:
+        name = scene_name or "hula"
+        say(f"{name}: effects")
+        rows.extend(bench_effects(name, seconds, repeats))
+        say(f"{name}: passes")
+        rows.append(bench_passes(name, seconds, repeats))
+        say(f"{name}: whole run")
+        rows.append(bench_scene_run(name))
+    if everything:
+        say("implicit 64x64 at 1/60 s")
+        rows.append(bench_implicit_frames(seconds, repeats))
+    return rows, scaling_exponent([r for r in rows if r["benchmark"] == "reference"])
+
+
+def parse_list(text: str, kind=str) -> tuple:
+    return tuple(kind(item.strip()) for item in text.split(",") if item.strip())
+
+
+def rows_document(rows: list[dict], fits: dict) -> list[dict]:
+    """The JSON file: the rows, then one row per scaling fit."""
+    return rows + [{"benchmark": "scaling", "integrator": name, **fit}
+                   for name, fit in fits.items()]
+
+
+def bench_command(sizes: str | None, integrators: str | None, scene_name: str | None,
+                  json_path: str | None, seconds: float, repeats: int, arch: str,
+                  quiet: bool, profile: bool = False) -> int:
+    """The ``bench`` command: the report on the console, the rows as JSON to ``json_path``."""
+    from pathlib import Path
+
+    from taichi_cloth.errors import InputError
+    from taichi_cloth.output.files import write_json
+    try:
+        size_list = parse_list(sizes, int) if sizes is not None else None
+    except ValueError:
+        raise InputError(f"--sizes {sizes}: expected a comma list of integers") from None
+    if size_list is not None and (not size_list or min(size_list) < 5):
+        raise InputError(f"--sizes {sizes}: every size must be at least 5 (a 5 × 5 sheet)")
+    integrator_list = parse_list(integrators) if integrators is not None else None
+    unknown = [name for name in integrator_list or () if name not in INTEGRATORS]
+    if unknown or integrator_list == ():
+        raise InputError(f"--integrators {integrators}: valid: {', '.join(INTEGRATORS)}")
+    if seconds <= 0 or repeats < 1:
+        raise InputError("--seconds must be > 0 and --repeats at least 1")
+    if scene_name is not None:
+        load_scene(scene_name)  # a bad name fails before any measuring
+    say = None if quiet else (lambda message: print(f"bench: {message}", flush=True))
+    rows, fits = run_bench(size_list, integrator_list, scene_name, seconds, repeats, arch, say,
+                           profile)
+    print(report(rows, fits))
+    if profile:
+        ti.profiler.print_kernel_profiler_info()
+    if json_path:
+        write_json(Path(json_path), rows_document(rows, fits))
+    return 0
