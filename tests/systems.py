@@ -1,11 +1,47 @@
-"""Small systems for the physics tests: one spring, built straight from arrays."""
+"""Small systems for the physics tests: one spring built straight from arrays, and the physics
+of a hand-built model assembled without a scene."""
+
+from dataclasses import dataclass
 
 import numpy as np
 
-from taichi_cloth.physics.forces import Forces
 from taichi_cloth.cloth.garment import Garment
+from taichi_cloth.effects import EffectContext
+from taichi_cloth.physics.control import Control
+from taichi_cloth.physics.forces import Forces
 from taichi_cloth.physics.integrators import make_integrator
 from taichi_cloth.physics.model import Model
+from taichi_cloth.physics.packed_grid import packed_grid_for
+
+
+@dataclass
+class Physics:
+    """A model's prescribed motion, effects, forces and (optionally) integrator."""
+
+    model: Model
+    control: Control
+    effects: list
+    forces: Forces
+    integrator: object = None
+
+
+def assemble(model: Model, effects=(), packed: bool = False, integrator: str | None = None,
+             capsule_radius=(), sample_count: int = 2, post_step=None, **options) -> Physics:
+    """The physics of ``model`` as ``Simulation`` builds it: ``effects`` as (effect class,
+    settings) pairs, a packed grid when ``packed`` (and the cloth is one), ``capsule_radius`` [m]
+    of the capsules in the control's track, ``sample_count`` samples per track; ``options`` go to
+    the integrator (the implicit solver's tolerance...)."""
+    control = Control(model.garment.pinned, model.garment.positions, model.real,
+                      np.asarray(capsule_radius, dtype=float), sample_count)
+    context = EffectContext(model, control)
+    built = [effect(settings, context) for effect, settings in effects]
+    control.upload()
+    forces = Forces(model, built, packed_grid_for(model, packed))
+    stepper = None
+    if integrator is not None:
+        stepper = make_integrator(integrator, forces, control, post_step) if not options else \
+            make_integrator(integrator, forces, control, post_step, **options)
+    return Physics(model, control, built, forces, stepper)
 
 
 def one_spring_garment(omega: float, rest_length: float = 1.0, amplitude: float = 0.1,
@@ -31,7 +67,7 @@ class SpringOscillator:
         damping_time = 2.0 * damping_ratio / omega  # ζ = β·ω/2 for c = β·k, m = 1
         self.garment = one_spring_garment(omega, amplitude=amplitude, damping_time=damping_time)
         self.model = Model(self.garment, "f64", 1.0 if damping_ratio > 0 else None)
-        self.integrator = make_integrator(integrator, Forces(self.model, []))
+        self.integrator = assemble(self.model, integrator=integrator).integrator
         self.omega, self.amplitude = omega, amplitude
         self.state_in, self.state_out = self.model.state(), self.model.state()
 

@@ -8,17 +8,17 @@ import pytest
 
 from taichi_cloth.cli import main
 from taichi_cloth.studies.bench import NumpyCloth, reference_cloth, reference_model
-from taichi_cloth.effects.aerodynamics import Gravity
-from taichi_cloth.physics.forces import PACKED_PARTICLE_MINIMUM, Forces
+from taichi_cloth.effects.gravity import Gravity, GravitySettings
+from taichi_cloth.physics.packed_grid import PACKED_PARTICLE_MINIMUM
 from taichi_cloth.cloth.garment import build_garment
-from taichi_cloth.physics.integrators import make_integrator
 from taichi_cloth.config.materials import PRESETS
 from taichi_cloth.physics.model import Model
-from taichi_cloth.config.scene import ClothConfig, GravityEffect
+from taichi_cloth.config.scene import ClothConfig
 
 import taichi as ti
+from systems import assemble
 
-G = GravityEffect().g
+G = GravitySettings().g
 
 
 def skirt_model(around: int, down: int) -> Model:
@@ -40,8 +40,8 @@ def test_numpy_and_taichi_forces_agree(model, packed):
     """Spring (+ dashpot) forces and gravity at a strained, moving state: the packed SIMD pass
     and the CSR gather both match NumPy to float32 rounding."""
     assert model.particle_count >= PACKED_PARTICLE_MINIMUM and model.grid is not None
-    forces = Forces(model, [Gravity(GravityEffect())], packed)
-    assert forces.has_grid == packed
+    forces = assemble(model, [(Gravity, GravitySettings())], packed).forces
+    assert forces.has_packed == packed
     rng = np.random.default_rng(3)
     x = (model.garment.positions
          + 0.002 * rng.standard_normal((model.particle_count, 3))).astype(np.float32)
@@ -61,7 +61,7 @@ def test_numpy_and_taichi_positions_agree_after_substeps():
     """The reference sheet after 200 symplectic substeps at 1/1920 s from rest: it starts to
     swing down about its pinned edge (a smooth motion, so float32 rounding does not grow)."""
     model = reference_model(40)
-    integrator = make_integrator("symplectic", Forces(model, [Gravity(GravityEffect())], True))
+    integrator = assemble(model, [(Gravity, GravitySettings())], True, "symplectic").integrator
     x = model.garment.positions.astype(np.float32)
     v = np.zeros_like(x)
     a, b = model.state(), model.state()

@@ -4,13 +4,12 @@ import numpy as np
 import pytest
 import taichi as ti
 
-from taichi_cloth.effects.contact import CapsuleContact, closest_on_segment, closest_points_numpy
-from taichi_cloth.physics.forces import Forces
+from taichi_cloth.effects.collision import CapsuleContact, CollisionSettings
+from taichi_cloth.effects.penalty import closest_on_segment, closest_points_numpy
 from taichi_cloth.physics.control import KinematicTrack
 from taichi_cloth.physics.model import Model
-from taichi_cloth.config.scene import CollisionEffect
 
-from systems import one_spring_garment
+from systems import assemble, one_spring_garment
 
 
 def brute_force_distance(x, a, b, samples=20001):
@@ -61,12 +60,13 @@ class OneCapsule:
     def __init__(self, friction=0.4):
         garment = one_spring_garment(omega=0.0)
         self.model = Model(garment, "f64", None)
-        self.track = KinematicTrack(2, 2, ti.f64)
         self.radius = 0.1
-        self.config = CollisionEffect(stiffness=1e4, damping=0.3, friction=friction,
-                                      thickness=0.0)
-        self.contact = CapsuleContact(self.config, np.array([self.radius]), self.track, self.model)
-        self.forces = Forces(self.model, [self.contact])
+        self.config = CollisionSettings(stiffness=1e4, damping=0.3, friction=friction,
+                                        thickness=0.0)
+        physics = assemble(self.model, [(CapsuleContact, self.config)],
+                           capsule_radius=[self.radius])
+        self.track = physics.control.capsule_track
+        self.contact, self.forces = physics.effects[0], physics.forces
         self.state = self.model.state()
         self.out = ti.Vector.field(3, ti.f64, self.model.particle_count)
 

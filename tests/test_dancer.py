@@ -3,22 +3,21 @@
 import numpy as np
 import pytest
 
-from taichi_cloth.output.run import make_body_rig
-from taichi_cloth.effects.contact import closest_points_numpy
+from taichi_cloth.effects.penalty import closest_points_numpy
 from taichi_cloth.config.scene import load_scene
 from taichi_cloth.physics.simulation import Simulation
 
 
 def run_scene(name, *overrides, frames=None):
     scene = load_scene(name, overrides)
-    rig = make_body_rig(scene)
-    simulation = Simulation(scene, rig)
+    simulation = Simulation(scene)
+    rig = simulation.body_rig
     waist_errors = []
 
     def check_waist(frame, metrics):
         """The pinned ring sits on the waist circle of the pelvis frame at the frame's end."""
         pose = rig.pose_at_frame_end
-        ring = simulation.positions()[simulation.model.pinned_particles]
+        ring = simulation.positions()[simulation.control.pinned_particles]
         if not len(ring):
             return
         local = (ring - pose.pelvis_position) @ pose.pelvis_rotation
@@ -47,8 +46,8 @@ def test_hula_at_the_papers_step_stays_finite_on_the_waist_and_outside_the_body(
 def test_skirt_is_in_contact_with_the_legs_while_dancing():
     """Contact is exercised, not vacuous: particles come within the margin of some capsule."""
     scene = load_scene("hula", ("simulation.dt=0.002",))
-    rig = make_body_rig(scene)
-    simulation = Simulation(scene, rig)
+    simulation = Simulation(scene)
+    rig = simulation.body_rig
     clearances = []
     simulation.run(60, lambda frame, metrics: clearances.append(
         (closest_points_numpy(simulation.positions(), rig.pose_at_frame_end.capsule_a,

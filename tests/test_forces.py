@@ -3,14 +3,15 @@
 import numpy as np
 import pytest
 
-from taichi_cloth.effects.aerodynamics import Wind
-from taichi_cloth.physics.forces import Forces, spring_energy
+from taichi_cloth.effects.wind import Wind
+from taichi_cloth.physics.metrics import spring_energy
 from taichi_cloth.cloth.garment import build_garment
 from taichi_cloth.physics.model import Model
 from taichi_cloth.config.scene import load_scene
 from taichi_cloth.physics.simulation import Simulation
 
 import taichi as ti
+from systems import assemble
 
 
 def small_sheet(*overrides):
@@ -23,7 +24,7 @@ def test_spring_force_is_minus_the_energy_gradient():
                         "cloth.material.shear_stiffness=40", "cloth.material.bend_stiffness=0.01")
     garment = build_garment(scene.cloth, scene.material)
     model = Model(garment, "f64", None)
-    forces = Forces(model, [])
+    forces = assemble(model).forces
     rng = np.random.default_rng(1)
     x = garment.positions + 0.02 * rng.standard_normal(garment.positions.shape)
     state = model.state()

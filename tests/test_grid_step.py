@@ -10,14 +10,14 @@ import functools
 import numpy as np
 import pytest
 import taichi as ti
+from systems import assemble
 
 from taichi_cloth.studies.bench import REFERENCE_MATERIAL
-from taichi_cloth.effects.aerodynamics import Drag, Gravity
-from taichi_cloth.physics.forces import Forces
+from taichi_cloth.effects.drag import Drag, DragSettings
+from taichi_cloth.effects.gravity import Gravity, GravitySettings
 from taichi_cloth.cloth.garment import build_garment
-from taichi_cloth.physics.integrators import make_integrator
 from taichi_cloth.physics.model import Model
-from taichi_cloth.config.scene import ClothConfig, DragEffect, GravityEffect
+from taichi_cloth.config.scene import ClothConfig
 
 FLOOR_Y = 0.55  # m: the projection below holds the hem above it
 STEPS, DT = 120, 5e-4  # substeps of the runs, and their length [s]
@@ -43,16 +43,14 @@ class FloorProjection:
 @functools.cache
 def skirt_model() -> Model:
     """A 64 × 17 skirt (periodic columns, above the packed minimum) of the benchmark's soft
-    fabric with dashpots (β = 2 ms), its waist ring sliding sideways."""
+    fabric with dashpots (β = 2 ms)."""
     cloth = ClothConfig(shape="skirt", resolution=(64, 17), pin="waist")
     material = dataclasses.replace(REFERENCE_MATERIAL, damping=2e-3)
-    model = Model(build_garment(cloth, material), "f32", 1.0)
-    # the waist ring slides along x at WAIST_SPEED during the run: moving pins
-    waist = model.garment.positions[model.pinned_particles]
-    track = np.stack([waist, waist + [WAIST_SPEED * RUN_SECONDS, 0.0, 0.0]])
-    model.pin_track.upload(0.0, RUN_SECONDS, track,
-                           np.broadcast_to([WAIST_SPEED, 0.0, 0.0], track.shape))
-    return model
+    return Model(build_garment(cloth, material), "f32", 1.0)
+
+
+def waist(model: Model) -> np.ndarray:
+    return model.garment.positions[model.garment.pinned]
 
 
 @functools.cache
@@ -61,12 +59,17 @@ def run(packed: bool, serial: bool, variant: str):
     skirt's radius shrunk by 10 % and a random velocity field. Cached: each packed kernel takes
     seconds to compile."""
     model = skirt_model()
-    effects = [Gravity(GravityEffect())] + ([Drag(DragEffect())] if variant == "drag" else [])
-    forces = Forces(model, effects, packed)
-    assert forces.has_grid == packed
-    integrator = make_integrator("symplectic", forces,
-                                 FloorProjection(model) if variant == "projection" else None)
-    assert integrator.steps_lanes == (packed and variant == "gravity")
+    effects = [(Gravity, GravitySettings())] + \
+        ([(Drag, DragSettings())] if variant == "drag" else [])
+    physics = assemble(model, effects, packed, "symplectic",
+                       post_step=FloorProjection(model) if variant == "projection" else None)
+    # the waist ring slides along x at WAIST_SPEED during the run: moving pins
+    track = np.stack([waist(model), waist(model) + [WAIST_SPEED * RUN_SECONDS, 0.0, 0.0]])
+    physics.control.pin_track.upload(0.0, RUN_SECONDS, track,
+                                     np.broadcast_to([WAIST_SPEED, 0.0, 0.0], track.shape))
+    assert physics.forces.has_packed == packed
+    integrator = physics.integrator
+    assert integrator.steps_in_lanes == (packed and variant == "gravity")
     integrator.serial = serial
     a, b = model.state(), model.state()
     rng = np.random.default_rng(5)
@@ -87,8 +90,8 @@ def test_grid_steps_match_the_gather(variant):
     if variant == "projection":
         assert np.isclose(x_gather[:, 1].min(), FLOOR_Y)  # the projection held some hem up
     model = skirt_model()
-    waist_end = model.garment.positions[model.pinned_particles] + [WAIST_SPEED * RUN_SECONDS, 0, 0]
-    np.testing.assert_allclose(x_gather[model.pinned_particles], waist_end, atol=1e-5)  # pins
+    waist_end = waist(model) + [WAIST_SPEED * RUN_SECONDS, 0, 0]
+    np.testing.assert_allclose(x_gather[model.garment.pinned], waist_end, atol=1e-5)  # pins
     x, v = run(packed=True, serial=True, variant=variant)
     np.testing.assert_allclose(x, x_gather, atol=2e-5)
     np.testing.assert_allclose(v, v_gather, atol=2e-3 * np.abs(v_gather).max())

@@ -16,7 +16,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from taichi_cloth.output.run import make_body_rig
 from taichi_cloth.config.scene import load_scene
 from taichi_cloth.physics.simulation import Simulation
 
@@ -52,7 +51,7 @@ def test_every_case_file_is_in_the_table_and_documents_itself():
                          ids=[f"{c}-{'-'.join(o) or 'default'}" for c, o, *_ in PASSING_RUNS])
 def test_hard_case_stays_within_its_bounds(case, overrides, strain_bound, speed_bound):
     scene = load_scene(str(HARD / f"{case}.toml"), overrides)
-    simulation = Simulation(scene, make_body_rig(scene))
+    simulation = Simulation(scene)
     record = simulation.run(scene.frame_count)
     stats = simulation.stats(record)
     json.dumps(stats, allow_nan=False)  # finite, or it would not serialise

@@ -4,17 +4,18 @@ SPD system, CG convergence, dt = "auto" against a measured limit, and the blow-u
 import numpy as np
 import pytest
 import taichi as ti
+from systems import assemble
 
-from taichi_cloth.output.run import make_body_rig
-from taichi_cloth.effects.contact import CapsuleContact, GroundContact
-from taichi_cloth.effects.aerodynamics import Drag, Gravity, Wind
-from taichi_cloth.physics.forces import Forces, make_effects
+from taichi_cloth.effects import EFFECT_BY_NAME
+from taichi_cloth.effects.collision import CapsuleContact, CollisionSettings
+from taichi_cloth.effects.drag import Drag, DragSettings
+from taichi_cloth.effects.gravity import Gravity, GravitySettings
+from taichi_cloth.effects.ground import GroundContact, GroundSettings
+from taichi_cloth.effects.wind import Wind, WindSettings
 from taichi_cloth.cloth.garment import build_garment
 from taichi_cloth.physics.integrators.implicit import BackwardEuler
-from taichi_cloth.physics.control import KinematicTrack
 from taichi_cloth.physics.model import Model
-from taichi_cloth.config.scene import (CollisionEffect, DragEffect, GravityEffect, GroundEffect,
-                                WindEffect, load_scene)
+from taichi_cloth.config.scene import load_scene
 from taichi_cloth.physics.simulation import Simulation
 
 
@@ -29,12 +30,10 @@ class SheetWithBar:
                                      "cloth.material.bend_stiffness=0.01"))
         garment = build_garment(scene.cloth, scene.material)
         self.model = Model(garment, "f64", 1.0)  # with dashpots
-        track = KinematicTrack(2, 2, ti.f64)
-        track.hold(np.array([[-0.6, 1.3, 0.0], [0.6, 1.3, 0.0]]))
-        contact = CapsuleContact(CollisionEffect(stiffness=1e4, damping=0.3, friction=0.0,
-                                                 thickness=0.01), np.array([0.08]), track,
-                                 self.model)
-        self.forces = Forces(self.model, [contact])
+        physics = assemble(self.model, [(CapsuleContact, CollisionSettings(
+            stiffness=1e4, damping=0.3, friction=0.0, thickness=0.01))], capsule_radius=[0.08])
+        physics.control.capsule_track.hold(np.array([[-0.6, 1.3, 0.0], [0.6, 1.3, 0.0]]))
+        self.forces = physics.forces
         self.state = self.model.state()
         n = self.model.particle_count
         self.force = ti.Vector.field(3, ti.f64, n)
@@ -129,14 +128,14 @@ class MovingSheet:
                                      "cloth.material.bend_stiffness=0.01"))
         garment = build_garment(scene.cloth, scene.material)
         self.model = Model(garment, "f64", 1.0)
-        track = KinematicTrack(2, 2, ti.f64)
-        track.hold(np.array([[-0.6, 1.3, 0.0], [0.6, 1.3, 0.0]]))
-        contact = CapsuleContact(CollisionEffect(stiffness=1e4, damping=0.3, friction=0.4,
-                                                 thickness=0.01), np.array([0.08]), track,
-                                 self.model)
-        effects = [Gravity(GravityEffect()), Drag(DragEffect()), Wind(WindEffect(gusts=0.5)),
-                   contact, GroundContact(GroundEffect(height=0.68, stiffness=1e4, friction=0.4))]
-        self.forces = Forces(self.model, effects)
+        effects = [(Gravity, GravitySettings()), (Drag, DragSettings()),
+                   (Wind, WindSettings(gusts=0.5)),
+                   (CapsuleContact, CollisionSettings(stiffness=1e4, damping=0.3, friction=0.4,
+                                                      thickness=0.01)),
+                   (GroundContact, GroundSettings(height=0.68, stiffness=1e4, friction=0.4))]
+        self.physics = assemble(self.model, effects, capsule_radius=[0.08])
+        self.physics.control.capsule_track.hold(np.array([[-0.6, 1.3, 0.0], [0.6, 1.3, 0.0]]))
+        self.forces = self.physics.forces
         rng = np.random.default_rng(7)
         self.x = garment.positions + 0.03 * rng.standard_normal(garment.positions.shape)
         self.v = 0.5 * rng.standard_normal(garment.positions.shape)
@@ -178,7 +177,7 @@ def test_the_precomputed_operator_equals_the_jacobian_products(moving):
     """The blocks the CG product gathers (n, a, b per spring, L_i per particle) give the same
     A·u as the Jacobian products that the finite-difference test checks, and the preconditioner
     is A's diagonal."""
-    integrator = BackwardEuler(moving.forces)
+    integrator = BackwardEuler(moving.forces, moving.physics.control)
     moving.start()
     integrator._start_candidate(moving.state, moving.t, moving.h)
     integrator._prepare(moving.t, moving.h, 0.0, 0.0)
@@ -237,7 +236,7 @@ def test_the_one_launch_serial_solve_and_the_parallel_one_take_the_same_steps(mo
     cold start."""
     runs = {}
     for serial in (True, False):
-        integrator = BackwardEuler(moving.forces)
+        integrator = BackwardEuler(moving.forces, moving.physics.control)
         integrator.serial = serial
         velocities = run_steps(integrator, moving.state, moving.state_out, moving.x, moving.v,
                                moving.t, moving.h, 5, moving.out)
@@ -255,13 +254,15 @@ def test_the_warm_start_cuts_iterations_and_keeps_the_cold_start_accuracy():
     scene = load_scene("sheet", ("cloth.resolution=[10, 10]", "cloth.orientation=horizontal"))
     garment = build_garment(scene.cloth, scene.material)
     model = Model(garment, "f64", 1.0)
-    forces = Forces(model, make_effects(scene.effects))
+    physics = assemble(model, [(EFFECT_BY_NAME[name], settings)
+                               for name, settings in scene.effects.items()])
+    forces = physics.forces
     state, state_out = model.state(), model.state()
     scratch = ti.Vector.field(3, ti.f64, model.particle_count)
     runs = {}
     for name, settings in (("warm", {}), ("cold", {"warm_start": False}),
                            ("tight", {"tolerance": 1e-9, "max_iterations": 5000})):
-        integrator = BackwardEuler(forces, **settings)
+        integrator = BackwardEuler(forces, physics.control, **settings)
         velocities = run_steps(integrator, state, state_out, garment.positions,
                                np.zeros_like(garment.positions), 0.0, 1.0 / 60.0, 12, scratch)
         runs[name] = integrator.take_iterations(), velocities
@@ -279,7 +280,7 @@ def test_conjugate_gradients_reach_their_tolerance_at_a_sixtieth_of_a_second(sce
                                                                             overrides):
     scene = load_scene(scene_name, overrides + ("simulation.integrator=implicit",
                                                 "simulation.dt=0.016666667"))
-    simulation = Simulation(scene, make_body_rig(scene))
+    simulation = Simulation(scene)
     stats = simulation.stats(simulation.run(10))
     assert stats["substeps_per_frame"] == 2
     assert stats["cg"]["unconverged_steps"] == 0
@@ -288,7 +289,7 @@ def test_conjugate_gradients_reach_their_tolerance_at_a_sixtieth_of_a_second(sce
 
 def test_implicit_hula_at_one_step_per_frame_stays_finite_and_unstretched():
     scene = load_scene("hula", ("simulation.integrator=implicit", "simulation.dt=0.034"))
-    simulation = Simulation(scene, make_body_rig(scene))
+    simulation = Simulation(scene)
     record = simulation.run(scene.frame_count)
     assert simulation.time_step.substeps_per_frame == 1
     assert record.retries == 0

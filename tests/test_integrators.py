@@ -130,21 +130,20 @@ class MovingAnchor:
     densely into the pin track (Hermite between samples, error ~1e-12 m here)."""
 
     def __init__(self, integrator: str, zeta: float, end_time: float = 2.0):
-        from taichi_cloth.physics.forces import Forces
-        from taichi_cloth.physics.integrators import make_integrator
         from taichi_cloth.physics.model import Model
-        from systems import one_spring_garment
+        from systems import assemble, one_spring_garment
         self.garment = one_spring_garment(OMEGA, damping_time=2.0 * zeta / OMEGA)
         samples = 2001
-        self.model = Model(self.garment, "f64", 1.0 if zeta > 0 else None, pin_samples=samples)
+        self.model = Model(self.garment, "f64", 1.0 if zeta > 0 else None)
+        physics = assemble(self.model, integrator=integrator, sample_count=samples)
         times = np.linspace(0.0, end_time, samples)
         anchor = np.zeros((samples, 2, 3))
         anchor_velocity = np.zeros((samples, 2, 3))
         anchor[:, 0, 0] = 0.2 * np.sin(3.0 * times)
         anchor_velocity[:, 0, 0] = 0.6 * np.cos(3.0 * times)
         anchor[:, 1] = self.garment.positions[2]
-        self.model.pin_track.upload(0.0, times[1], anchor, anchor_velocity)
-        self.integrator = make_integrator(integrator, Forces(self.model, []))
+        physics.control.pin_track.upload(0.0, times[1], anchor, anchor_velocity)
+        self.integrator = physics.integrator
         self.states = self.model.state(), self.model.state()
 
     def displacement_at(self, end_time: float, steps: int) -> float:

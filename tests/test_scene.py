@@ -11,7 +11,6 @@ import pytest
 from taichi_cloth.errors import InputError
 from taichi_cloth.config.scene import load_scene, shipped_scene_names
 from taichi_cloth.physics.simulation import Simulation
-from taichi_cloth.output.run import make_body_rig
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -19,7 +18,7 @@ REPO = Path(__file__).resolve().parent.parent
 @pytest.mark.parametrize("name", shipped_scene_names())
 def test_every_shipped_scene_loads_and_runs_a_few_frames(name):
     scene = load_scene(name, ("cloth.resolution=[8, 6]",))
-    simulation = Simulation(scene, make_body_rig(scene))
+    simulation = Simulation(scene)
     record = simulation.run(2)
     stats = simulation.stats(record)
     assert stats["finite"] and stats["frames"] == 2
@@ -138,5 +137,5 @@ def test_a_simulation_allocates_its_fields_in_few_snode_trees():
     program = ti.lang.impl.get_runtime().prog
     scene = load_scene("hula", ("cloth.resolution=[8, 6]",))
     before = program.get_snode_tree_size()
-    Simulation(scene, make_body_rig(scene))
+    Simulation(scene)
     assert program.get_snode_tree_size() - before <= 3

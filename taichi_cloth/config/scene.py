@@ -1,7 +1,8 @@
 """Scene files: TOML plus ``--set`` overrides into a frozen, validated ``Scene``.
 
-Every key of every section is declared once, in the dataclasses below, with its default and its
-check (``setting``). ``load_scene`` parses the file with ``tomllib``, applies the overrides, and
+Every key of every section is declared once, in the dataclasses below (and each effect's table in
+its own ``Settings``, ``effects/``), with its default and its check (``settings.setting``).
+``load_scene`` parses the file with ``tomllib``, applies the overrides, and
 walks the tables against those declarations: an unknown key (with the closest valid one
 suggested), a wrong type or an impossible value raises ``InputError`` naming the file (or the
 ``--set`` flag) and the dotted key. Units are SI, angles in degrees, y is up.
@@ -9,36 +10,21 @@ suggested), a wrong type or an impossible value raises ``InputError`` naming the
 
 import dataclasses
 import difflib
-import math
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from taichi_cloth.errors import InputError
 from taichi_cloth.config.materials import PRESETS, Material
+from taichi_cloth.effects import EFFECT_BY_NAME
+from taichi_cloth.errors import InputError
+from taichi_cloth.settings import SourceContext, build_table, setting
 
 SCENES_DIR = Path(__file__).resolve().parents[2] / "scenes"
 INTEGRATOR_NAMES = ("euler", "symplectic", "rk4", "implicit")
 ARCH_NAMES = ("cpu", "cuda", "vulkan", "gpu")
 SPRING_FAMILIES = ("stretch", "shear", "bend")
 MESH_FORMATS = ("obj", "ply", "vtu", "xdmf")
-
-
-def setting(default: Any, kind: str, *, low: float | None = None, high: float | None = None,
-            low_inclusive: bool = True, choices: tuple | None = None, length: int | None = None,
-            doc: str = ""):
-    """A declared scene key: its default, its kind and its allowed values.
-
-    kind: "float", "int", "str", "bool", "float_list", "int_list", "str_list", "dt".
-    low/high bound numbers (every element of a list); choices bound strings (every element of a
-    list); length fixes a list's length.
-    """
-    check = dict(kind=kind, low=low, high=high, low_inclusive=low_inclusive, choices=choices,
-                 length=length, doc=doc)
-    if isinstance(default, list):
-        default = tuple(default)
-    return field(default=default, metadata=check)
 
 
 @dataclass(frozen=True)
@@ -94,7 +80,8 @@ class ClothConfig:
     shape: str = setting("sheet", "str", choices=("skirt", "sheet"))
     resolution: tuple = setting([24, 24], "int_list", low=2, high=4096, length=2,
                                 doc="[around, down] for a skirt, [x, z] for a sheet")
-    material: MaterialOverrides = MaterialOverrides()
+    material: MaterialOverrides = setting(MaterialOverrides(), "table", shorthand="preset",
+                                          doc="a preset name, or a table of overrides")
     pin: str = setting("top-edge", "str", choices=("waist", "top-edge", "corners", "none"))
     springs: tuple = setting(list(SPRING_FAMILIES), "str_list", choices=SPRING_FAMILIES)
     waist_radius: float = setting(0.17, "float", low=0.0, low_inclusive=False, doc="skirt, m")
@@ -106,65 +93,6 @@ class ClothConfig:
     height: float = setting(1.0, "float", doc="sheet: y of its top edge (vertical) or plane, m")
     orientation: str = setting("vertical", "str", choices=("vertical", "horizontal"),
                                doc="sheet hangs in the x-y plane or lies in the x-z plane")
-
-
-@dataclass(frozen=True)
-class GravityEffect:
-    g: float = setting(9.81, "float", low=0.0, doc="m/s², pointing down (−y)")
-
-
-@dataclass(frozen=True)
-class DampingEffect:
-    scale: float = setting(1.0, "float", low=0.0, doc="multiplies the material's damping time")
-
-
-@dataclass(frozen=True)
-class DragEffect:
-    coefficient: float = setting(1.0, "float", low=0.0, doc="drag coefficient C_d of a face")
-    air_density: float = setting(1.2, "float", low=0.0, doc="kg/m³")
-
-
-@dataclass(frozen=True)
-class WindEffect:
-    strength: float = setting(3.0, "float", low=0.0, doc="alpha: wind speed, m/s")
-    azimuth: float = setting(0.0, "float", low=-360.0, high=360.0,
-                             doc="beta: degrees from +x towards +z")
-    elevation: float = setting(0.0, "float", low=-90.0, high=90.0,
-                               doc="gamma: degrees above the horizontal")
-    gusts: float = setting(0.0, "float", low=0.0, high=1.0, doc="relative gust amplitude")
-    gust_frequency: float = setting(0.5, "float", low=0.0, low_inclusive=False, doc="Hz")
-    coefficient: float = setting(1.0, "float", low=0.0, doc="pressure coefficient C_d of a face")
-    air_density: float = setting(1.2, "float", low=0.0, doc="kg/m³")
-
-
-@dataclass(frozen=True)
-class CollisionEffect:
-    stiffness: float = setting(1e5, "float", low=0.0, low_inclusive=False,
-                               doc="penalty stiffness per unit particle mass, 1/s²")
-    damping: float = setting(0.1, "float", low=0.0, doc="normal damping ratio ζ")
-    friction: float = setting(0.3, "float", low=0.0, doc="Coulomb coefficient μ")
-    thickness: float = setting(0.005, "float", low=0.0, doc="contact margin around capsules, m")
-    mode: str = setting("penalty", "str", choices=("penalty", "penalty+projection"))
-
-
-@dataclass(frozen=True)
-class GroundEffect:
-    height: float = setting(0.0, "float", doc="y of the ground plane, m")
-    stiffness: float = setting(1e5, "float", low=0.0, low_inclusive=False,
-                               doc="penalty stiffness per unit particle mass, 1/s²")
-    damping: float = setting(0.1, "float", low=0.0, doc="normal damping ratio ζ")
-    friction: float = setting(0.5, "float", low=0.0, doc="Coulomb coefficient μ")
-    thickness: float = setting(0.005, "float", low=0.0, doc="contact margin above the plane, m")
-
-
-EFFECT_TYPES = {
-    "gravity": GravityEffect,
-    "damping": DampingEffect,
-    "drag": DragEffect,
-    "wind": WindEffect,
-    "collision": CollisionEffect,
-    "ground": GroundEffect,
-}
 
 
 @dataclass(frozen=True)
@@ -304,119 +232,23 @@ def apply_override(raw: dict, parts: list[str], value: Any) -> None:
     node[parts[-1]] = value
 
 
-# ---------------------------------------------------------------------------------------------
-# Validation
-
-
-class _Context:
-    """Where a value came from, for error messages: the file, or the --set flag."""
-
-    def __init__(self, path: str, overridden: list[str]):
-        self.path = path
-        self.overridden = overridden
-
-    def error(self, dotted: str, problem: str) -> InputError:
-        for key in self.overridden:
-            if dotted == key or dotted.startswith(key + ".") or key.startswith(dotted + "."):
-                return InputError(f"--set {key}: {problem}")
-        return InputError(f"{self.path}: {dotted}: {problem}")
-
-
-def _check_number(ctx, dotted, value, meta, integer):
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or (
-            integer and not isinstance(value, int)):
-        raise ctx.error(dotted, f"expected {'an integer' if integer else 'a number'}, "
-                                f"got {value!r}")
-    if not math.isfinite(value):
-        raise ctx.error(dotted, f"must be finite, got {value!r}")
-    low, high = meta["low"], meta["high"]
-    if low is not None and (value < low or (value == low and not meta["low_inclusive"])):
-        bound = f">= {low}" if meta["low_inclusive"] else f"> {low}"
-        raise ctx.error(dotted, f"must be {bound}, got {value!r}")
-    if high is not None and value > high:
-        raise ctx.error(dotted, f"must be <= {high}, got {value!r}")
-    return float(value) if not integer else value
-
-
-def _check_choice(ctx, dotted, value, meta):
-    if not isinstance(value, str):
-        raise ctx.error(dotted, f"expected a string, got {value!r}")
-    choices = meta["choices"]
-    if choices is not None and value not in choices:
-        listed = ", ".join(repr(c) for c in choices)
-        raise ctx.error(dotted, f"unknown value {value!r}; valid: {listed}")
-    return value
-
-
-def _check_value(ctx, dotted, value, meta):
-    kind = meta["kind"]
-    if kind == "float":
-        return _check_number(ctx, dotted, value, meta, integer=False)
-    if kind == "int":
-        return _check_number(ctx, dotted, value, meta, integer=True)
-    if kind == "str":
-        return _check_choice(ctx, dotted, value, meta)
-    if kind == "bool":
-        if not isinstance(value, bool):
-            raise ctx.error(dotted, f"expected true or false, got {value!r}")
-        return value
-    if kind == "dt":
-        if value == "auto":
-            return value
-        if isinstance(value, str):
-            raise ctx.error(dotted, f"expected a number of seconds or \"auto\", got {value!r}")
-        return _check_number(ctx, dotted, value, meta, integer=False)
-    element_kind = kind.removesuffix("_list")
-    if not isinstance(value, list):
-        raise ctx.error(dotted, f"expected a list, got {value!r}")
-    if meta["length"] is not None and len(value) != meta["length"]:
-        raise ctx.error(dotted, f"expected a list of {meta['length']} values, got {value!r}")
-    element_meta = dict(meta, kind=element_kind)
-    return tuple(_check_value(ctx, f"{dotted}[{i}]", v, element_meta) for i, v in enumerate(value))
-
-
-def _build(ctx: _Context, cls, table: Any, dotted: str):
-    """Validate a TOML table against dataclass ``cls`` and construct it."""
-    if not isinstance(table, dict):
-        raise ctx.error(dotted, f"expected a table, got {table!r}")
-    declared = {f.name: f for f in dataclasses.fields(cls)}
-    for key in table:
-        if key not in declared:
-            close = difflib.get_close_matches(key, list(declared), n=1)
-            hint = f"; did you mean '{close[0]}'?" if close else \
-                f"; valid keys: {', '.join(declared)}"
-            raise ctx.error(f"{dotted}.{key}", f"unknown key '{key}' in [{dotted}]{hint}")
-    values = {}
-    for name, f in declared.items():
-        if name not in table:
-            continue
-        child = f"{dotted}.{name}"
-        if f.type is MaterialOverrides:
-            raw = table[name]
-            if isinstance(raw, str):
-                raw = {"preset": raw}
-            values[name] = _build(ctx, MaterialOverrides, raw, child)
-        else:
-            values[name] = _check_value(ctx, child, table[name], f.metadata)
-    return cls(**values)
-
-
-def _build_effects(ctx: _Context, table: Any) -> dict:
+def _build_effects(ctx: SourceContext, table: Any) -> dict:
     if not isinstance(table, dict):
         raise ctx.error("effects", f"expected a table of effects, got {table!r}")
     effects = {}
     for name, settings in table.items():
-        if name not in EFFECT_TYPES:
-            close = difflib.get_close_matches(name, list(EFFECT_TYPES), n=1)
+        if name not in EFFECT_BY_NAME:
+            close = difflib.get_close_matches(name, list(EFFECT_BY_NAME), n=1)
             hint = f"did you mean '{close[0]}'? " if close else ""
             raise ctx.error(f"effects.{name}", f"unknown effect '{name}'; {hint}valid: "
-                                               f"{', '.join(EFFECT_TYPES)}")
+                                               f"{', '.join(EFFECT_BY_NAME)}")
         if settings is False:
             continue
         if settings is True:
             settings = {}
-        effects[name] = _build(ctx, EFFECT_TYPES[name], settings, f"effects.{name}")
-    return {name: effects[name] for name in EFFECT_TYPES if name in effects}
+        effects[name] = build_table(ctx, EFFECT_BY_NAME[name].Settings, settings,
+                                    f"effects.{name}")
+    return {name: effects[name] for name in EFFECT_BY_NAME if name in effects}
 
 
 SECTIONS = ("scene", "simulation", "cloth", "effects", "body", "render", "output")
@@ -436,17 +268,17 @@ def load_scene(name_or_path: str, overrides: tuple[str, ...] = ()) -> Scene:
         parts, value = parse_override(text)
         apply_override(raw, parts, value)
         overridden.append(".".join(parts))
-    ctx = _Context(str(path), overridden)
+    ctx = SourceContext(str(path), overridden)
     for section in raw:
         if section not in SECTIONS:
             close = difflib.get_close_matches(section, SECTIONS, n=1)
             hint = f"; did you mean '{close[0]}'?" if close else f"; valid: {', '.join(SECTIONS)}"
             raise ctx.error(section, f"unknown section [{section}]{hint}")
-    info = _build(ctx, SceneInfo, raw.get("scene", {}), "scene")
+    info = build_table(ctx, SceneInfo, raw.get("scene", {}), "scene")
     if not info.name:
         info = dataclasses.replace(info, name=path.stem)
-    cloth = _build(ctx, ClothConfig, raw.get("cloth", {}), "cloth")
-    body = _build(ctx, BodyConfig, raw["body"], "body") if "body" in raw else None
+    cloth = build_table(ctx, ClothConfig, raw.get("cloth", {}), "cloth")
+    body = build_table(ctx, BodyConfig, raw["body"], "body") if "body" in raw else None
     if cloth.pin == "waist" and cloth.shape != "skirt":
         raise ctx.error("cloth.pin", "pin = \"waist\" needs shape = \"skirt\"")
     if cloth.shape == "skirt" and cloth.pin not in ("waist", "none"):
@@ -457,13 +289,14 @@ def load_scene(name_or_path: str, overrides: tuple[str, ...] = ()) -> Scene:
     scene = Scene(
         path=str(path),
         scene=info,
-        simulation=_build(ctx, SimulationConfig, raw.get("simulation", {}), "simulation"),
+        simulation=build_table(ctx, SimulationConfig, raw.get("simulation", {}), "simulation"),
         cloth=cloth,
         effects=_build_effects(ctx, raw.get("effects", {})),
         body=body,
-        render=_build(ctx, RenderConfig, raw.get("render", {}), "render"),
-        output=_build(ctx, OutputConfig, raw.get("output", {}), "output"),
+        render=build_table(ctx, RenderConfig, raw.get("render", {}), "render"),
+        output=build_table(ctx, OutputConfig, raw.get("output", {}), "output"),
     )
-    if "collision" in scene.effects and scene.body is None:
-        raise ctx.error("effects.collision", "collision needs a [body] section")
+    for name in scene.effects:
+        if EFFECT_BY_NAME[name].needs_body and scene.body is None:
+            raise ctx.error(f"effects.{name}", f"{name} needs a [body] section")
     return scene

@@ -8,7 +8,6 @@ loads it, refuses it if the scene (file or overrides) changed, and continues fro
 A finished run removes its checkpoint.
 """
 
-import dataclasses
 import hashlib
 import io
 from dataclasses import dataclass
@@ -19,6 +18,7 @@ import numpy as np
 from taichi_cloth.errors import InputError
 from taichi_cloth.output.files import atomic_path
 from taichi_cloth.config.scene import Scene
+from taichi_cloth.physics.simulation import Snapshot
 
 CHECKPOINT_NAME = "checkpoint.npz"
 
@@ -30,30 +30,30 @@ def scene_fingerprint(scene: Scene) -> str:
 
 @dataclass(frozen=True)
 class Checkpoint:
-    """next_frame: the first frame still to simulate; positions [m] and velocities [m/s] (N, 3)
-    at its start; dt [s] and substeps_per_frame in force; retries so far; cg_iterations: the CG
-    iterations of every step so far (implicit); integrator_memory: ``Integrator.memory()`` at
-    that frame's start."""
+    """next_frame: the first frame still to simulate; snapshot: the simulation at its start
+    (``physics.simulation.Snapshot``: state, time step in force, integrator memory); retries so
+    far; fingerprint of the scene; cg_iterations: the CG iterations of every step so far
+    (implicit)."""
 
     next_frame: int
-    positions: np.ndarray
-    velocities: np.ndarray
-    dt: float
-    substeps_per_frame: int
+    snapshot: Snapshot
     retries: int
     fingerprint: str
     cg_iterations: np.ndarray
-    integrator_memory: dict
+
 
 MEMORY_PREFIX = "memory."  # npz keys of the integrator's memory
+SNAPSHOT_KEYS = ("positions", "velocities", "dt", "substeps_per_frame")
 
 
 def save_checkpoint(directory: Path, checkpoint: Checkpoint) -> None:
     buffer = io.BytesIO()
-    arrays = {field.name: getattr(checkpoint, field.name)
-              for field in dataclasses.fields(checkpoint) if field.name != "integrator_memory"}
+    snapshot = checkpoint.snapshot
+    arrays = {key: getattr(snapshot, key) for key in SNAPSHOT_KEYS}
+    arrays.update(next_frame=checkpoint.next_frame, retries=checkpoint.retries,
+                  fingerprint=checkpoint.fingerprint, cg_iterations=checkpoint.cg_iterations)
     arrays.update({MEMORY_PREFIX + name: value
-                   for name, value in checkpoint.integrator_memory.items()})
+                   for name, value in snapshot.integrator_memory.items()})
     np.savez(buffer, **arrays)
     with atomic_path(Path(directory) / CHECKPOINT_NAME) as temporary:
         temporary.write_bytes(buffer.getvalue())
@@ -67,13 +67,14 @@ def load_checkpoint(directory: Path, scene: Scene) -> Checkpoint:
         raise InputError(f"--resume: no {CHECKPOINT_NAME} in {directory} (nothing was interrupted "
                          f"there, or the run finished)")
     with np.load(path) as data:
-        checkpoint = Checkpoint(
-            next_frame=int(data["next_frame"]), positions=data["positions"],
-            velocities=data["velocities"], dt=float(data["dt"]),
-            substeps_per_frame=int(data["substeps_per_frame"]), retries=int(data["retries"]),
-            fingerprint=str(data["fingerprint"]), cg_iterations=data["cg_iterations"],
+        snapshot = Snapshot(
+            positions=data["positions"], velocities=data["velocities"], dt=float(data["dt"]),
+            substeps_per_frame=int(data["substeps_per_frame"]),
             integrator_memory={key[len(MEMORY_PREFIX):]: data[key] for key in data.files
                                if key.startswith(MEMORY_PREFIX)})
+        checkpoint = Checkpoint(
+            next_frame=int(data["next_frame"]), snapshot=snapshot, retries=int(data["retries"]),
+            fingerprint=str(data["fingerprint"]), cg_iterations=data["cg_iterations"])
     if checkpoint.fingerprint != scene_fingerprint(scene):
         raise InputError(f"--resume: {path} was written for other scene settings; run the same "
                          f"scene with the same --set options, or start again without --resume")

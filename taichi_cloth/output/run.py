@@ -61,14 +61,6 @@ def check_writable(directory: Path, flag: str) -> None:
                          f"({error.strerror})") from None
 
 
-def make_body_rig(scene: Scene):
-    """The body rig of a scene with a [body] section (None otherwise)."""
-    if scene.body is None:
-        return None
-    from taichi_cloth.physics.rig import BodyRig
-    return BodyRig(scene)
-
-
 def check_size(value: int, flag: str) -> None:
     """--width/--height: the renderer's pixel range."""
     if not 16 <= value <= 8192:
@@ -110,9 +102,10 @@ def run_scene(scene: Scene, frame_count: int, directory: Path, quiet: bool,
     is given) and write meshes; then stats.json and a one-line summary. An interrupted or
     unstable run still leaves stats.json for the frames done (and, interrupted, a checkpoint that
     ``resume`` continues from)."""
-    from taichi_cloth.physics.simulation import FrameMetrics, RunRecord, Simulation
+    from taichi_cloth.physics.metrics import FrameMetrics, RunRecord
+    from taichi_cloth.physics.simulation import Simulation
     check_writable(directory, "--out")
-    simulation = Simulation(scene, make_body_rig(scene))
+    simulation = Simulation.from_scene(scene)
     record = RunRecord()
     first_frame = 0
     if resume:
@@ -120,7 +113,8 @@ def run_scene(scene: Scene, frame_count: int, directory: Path, quiet: bool,
             raise InputError("--resume: an XDMF series cannot be continued; run again without "
                              "--resume, or without xdmf")
         checkpoint = load_checkpoint(directory, scene)
-        first_frame = restore(simulation, checkpoint)
+        simulation.restore(checkpoint.snapshot)
+        first_frame = checkpoint.next_frame
         previous = json.loads((directory / "stats.json").read_text())["per_frame"]
         record.frames = [FrameMetrics(**frame) for frame in previous[:first_frame]]
         record.retries = checkpoint.retries
@@ -145,7 +139,7 @@ def run_scene(scene: Scene, frame_count: int, directory: Path, quiet: bool,
         seconds = {"render": 0.0, "export": 0.0}
 
         def on_frame(frame, metrics):
-            t = simulation.frame_time(frame)
+            t = simulation.frame_end_time(frame)
             started = time.perf_counter()
             if renderer is not None:
                 image = renderer.draw(simulation.state_in.x, t)
@@ -157,9 +151,7 @@ def run_scene(scene: Scene, frame_count: int, directory: Path, quiet: bool,
                 mesh.append(frame, t, points(t))
             seconds["render"] += rendered - started
             seconds["export"] += time.perf_counter() - rendered
-            finished.update(frame=frame, positions=simulation.positions(),
-                            velocities=simulation.state_in.v.to_numpy(),
-                            integrator_memory=simulation.integrator.memory())
+            finished.update(frame=frame, snapshot=simulation.snapshot())
             progress.update(t)
 
         try:
@@ -186,17 +178,6 @@ def run_scene(scene: Scene, frame_count: int, directory: Path, quiet: bool,
     return 0
 
 
-def restore(simulation, checkpoint) -> int:
-    """Put the checkpoint's state and time step into ``simulation``; returns the next frame."""
-    real = simulation.model.numpy_real
-    simulation.state_in.x.from_numpy(checkpoint.positions.astype(real))
-    simulation.state_in.v.from_numpy(checkpoint.velocities.astype(real))
-    simulation.time_step = dataclasses.replace(simulation.time_step, dt=checkpoint.dt,
-                                               substeps_per_frame=checkpoint.substeps_per_frame)
-    simulation.integrator.restore_memory(checkpoint.integrator_memory)
-    return checkpoint.next_frame
-
-
 def keep_partial_run(simulation, record, directory: Path, finished: dict, stop) -> None:
     """After a stop: stats.json for the whole frames done (marked ``stopped``) and, when
     interrupted (not unstable), a checkpoint and how to resume on stderr."""
@@ -211,11 +192,9 @@ def keep_partial_run(simulation, record, directory: Path, finished: dict, stop) 
     if unstable:
         return
     save_checkpoint(directory, Checkpoint(
-        next_frame=done, positions=finished["positions"], velocities=finished["velocities"],
-        dt=simulation.time_step.dt, substeps_per_frame=simulation.time_step.substeps_per_frame,
-        retries=record.retries, fingerprint=scene_fingerprint(simulation.scene),
-        cg_iterations=np.array(record.cg_iterations, np.int64),
-        integrator_memory=finished["integrator_memory"]))
+        next_frame=done, snapshot=finished["snapshot"], retries=record.retries,
+        fingerprint=scene_fingerprint(simulation.scene),
+        cg_iterations=np.array(record.cg_iterations, np.int64)))
     command = " ".join(["python -m taichi_cloth", *sys.argv[1:]])
     sys.stderr.write(f"stopped after frame {done - 1}: frames 0–{done - 1} and stats.json are "
                      f"in {directory}; to continue: {command} --resume\n")

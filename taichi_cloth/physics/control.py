@@ -58,3 +58,47 @@ class KinematicTrack:
         slope = (6 * s2 - 6 * s) * p0 + (3 * s2 - 4 * s + 1) * v0 \
             + (6 * s - 6 * s2) * p1 + (3 * s2 - 2 * s) * v1
         return position, slope / delta
+
+
+@ti.data_oriented
+class Control:
+    """Everything prescribed rather than simulated, in one place that the body rig writes once per
+    frame (``physics.rig``) and the kernels read at every substep and stage:
+
+    - the pinned particles: ``pin_slot[i]`` is particle i's point in ``pin_track`` (−1 for a free
+      particle); a static pin holds its rest position, a worn skirt's waist follows the pelvis;
+    - the body's capsules: ``capsule_radius`` [m] (constant) and ``capsule_track``, whose points
+      2c and 2c + 1 are capsule c's endpoints a and b; ``capsule_ends_at_frame_end`` are host
+      copies (a, b) of their positions at the end of the frame last written, for the metrics.
+
+    The model (``physics.model``) holds only constants.
+    """
+
+    def __init__(self, pinned: np.ndarray, rest_positions: np.ndarray, real,
+                 capsule_radius: np.ndarray = np.zeros(0), sample_count: int = 2):
+        """pinned (N,) bool; rest_positions (N, 3) [m]; sample_count: times per frame at which
+        the rig samples the motion (2 when nothing moves)."""
+        self.pinned_particles = np.flatnonzero(pinned)
+        self.capsule_radius = np.asarray(capsule_radius, dtype=np.float64)
+        self.capsule_count = len(self.capsule_radius)
+        self.capsule_ends_at_frame_end = (np.zeros((0, 3)), np.zeros((0, 3)))
+        self.pin_slot = ti.field(ti.i32, len(pinned))
+        self.pin_track = KinematicTrack(max(1, len(self.pinned_particles)), sample_count, real)
+        self.capsule_track = KinematicTrack(2 * self.capsule_count, sample_count, real) \
+            if self.capsule_count else None
+        self._rest_positions = rest_positions
+
+    def upload(self) -> None:
+        """Fill the fields: pins held at their rest positions. Called once the effects have
+        allocated theirs too: a copy is a kernel launch, which closes Taichi's current SNode tree,
+        and a process may hold only ~500 trees, so fields are allocated together."""
+        slot = np.full(len(self._rest_positions), -1, dtype=np.int32)
+        slot[self.pinned_particles] = np.arange(len(self.pinned_particles), dtype=np.int32)
+        self.pin_slot.from_numpy(slot)
+        if len(self.pinned_particles):
+            self.pin_track.hold(self._rest_positions[self.pinned_particles])
+
+    @ti.func
+    def pin_target(self, i_p, t):
+        """Position [m] and velocity [m/s] of pinned particle i_p at time t [s]."""
+        return self.pin_track.at(self.pin_slot[i_p], t)

@@ -1,115 +1,136 @@
-"""A scene's simulation: build everything once, then frames × substeps.
+"""A scene's simulation: it builds everything once, owns its state and its time step, and runs
+frames × substeps.
 
-Per substep the body (when there is one) moves the pin frame and the capsules, and the
-integrator advances ``state_in → state_out``; the two states swap. No Python loop over particles
-and no copy to the host happens inside the substep loop. Per frame the state is copied to NumPy
-once for the metrics (energies, strain, penetration, centre of mass) and the stability check:
-a non-finite or exploded state stops the run with ``UnstableError`` (exit code 3) before anything
-of that frame is written.
+``Simulation.from_scene`` builds, in order: the body rig (``physics.rig``, when the scene has a
+[body]), the garment (``cloth.garment``), the constant model (``physics.model``), the prescribed
+motion the rig writes (``physics.control``), the scene's effects (``effects/``), the packed grid
+when it pays (``physics.packed_grid``), the force evaluation (``physics.forces``), the integrator
+(``physics.integrators``), the states, and the time step (``physics.timestep``). The time step
+changes in one place (``set_time_step``); ``snapshot``/``restore`` copy the state and what the
+integrator carries to the host and back (checkpoints, repeated runs).
+
+Per frame the rig poses the body (capsules, pinned waist) across the frame, then the integrator
+advances ``state_in → state_out`` substep by substep in kernel launches of several substeps; the
+two states swap. No Python loop over particles and no copy to the host happens inside the
+substep loop. Per frame the state is copied to NumPy once for the metrics (``physics.metrics``)
+and the stability check: a non-finite or exploded state is rolled back and redone with the step
+halved, and in the end stops the run with ``UnstableError`` (exit code 3) before anything of that
+frame is written.
 """
 
 import dataclasses
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import taichi as ti
 
-from taichi_cloth.errors import UnstableError
-from taichi_cloth.physics.forces import Forces, make_effects, spring_energy, stretch_strain
 from taichi_cloth.cloth.garment import build_garment
+from taichi_cloth.config.scene import Scene, load_scene
+from taichi_cloth.effects import EffectContext, build_effects, model_options
+from taichi_cloth.errors import UnstableError
+from taichi_cloth.physics.control import Control
+from taichi_cloth.physics.forces import Forces
 from taichi_cloth.physics.integrators import INTEGRATORS, make_integrator
 from taichi_cloth.physics.integrators.implicit import SolverBreakdown
+from taichi_cloth.physics.metrics import FrameMetrics, RunRecord, spring_energy, stretch_strain
 from taichi_cloth.physics.model import Model
-from taichi_cloth.runtime import start_taichi
-from taichi_cloth.config.scene import Scene
+from taichi_cloth.physics.packed_grid import packed_grid_for
+from taichi_cloth.physics.rig import BodyRig
 from taichi_cloth.physics.timestep import TimeStep, choose_time_step
+from taichi_cloth.runtime import start_taichi
 
 
-@dataclass
-class FrameMetrics:
-    """One frame's measurements (SI units) as they go into ``stats.json``."""
+@dataclass(frozen=True)
+class Snapshot:
+    """Host copies of what a run needs to go on exactly as it would have: positions [m] and
+    velocities [m/s] (N, 3), the step dt [s] and substeps per frame in force, and what the
+    integrator carries between steps (``Integrator.memory``)."""
 
-    frame: int
-    t: float
-    kinetic_energy: float
-    potential_energy: float
-    max_strain: float
-    max_penetration: float
-    center_of_mass: list
-    cg_iterations: float | None = None  # implicit integrator: mean CG iterations per step
-
-    def as_dict(self) -> dict:
-        return {key: value for key, value in self.__dict__.items() if value is not None}
-
-
-@dataclass
-class RunRecord:
-    """What a run measured: per-frame metrics and wall-clock seconds per phase."""
-
-    frames: list = field(default_factory=list)
-    wall_seconds: dict = field(default_factory=lambda: {"compile": 0.0, "simulate": 0.0})
-    cg_iterations: list = field(default_factory=list)  # per implicit step
-    retries: int = 0  # frames rolled back and redone with the step halved
-
-    @property
-    def max_strain(self) -> float:
-        return max((f.max_strain for f in self.frames), default=0.0)
-
-    @property
-    def max_penetration(self) -> float:
-        return max((f.max_penetration for f in self.frames), default=0.0)
+    positions: np.ndarray
+    velocities: np.ndarray
+    dt: float
+    substeps_per_frame: int
+    integrator_memory: dict
 
 
 class Simulation:
-    """Everything a scene needs to run: model, forces, integrator, states, time step."""
+    """Everything a scene needs to run: rig, model, control, effects, forces, integrator, states,
+    time step (module docstring)."""
 
-    def __init__(self, scene: Scene, body_rig=None):
-        """body_rig: a ``rig.BodyRig`` when the scene has a body (None for cloth alone)."""
+    def __init__(self, scene: Scene):
         start_taichi(scene.simulation.arch)
         self.scene = scene
-        self.body_rig = body_rig
-        material = scene.material
-        waist_height = body_rig.waist_height if body_rig is not None else None
-        self.garment = build_garment(scene.cloth, material, waist_height, scene.path)
-        damping = scene.effects.get("damping")
+        self.frame_duration = 1.0 / scene.scene.fps  # [s]
+        self.body_rig = BodyRig(scene) if scene.body is not None else None
+        waist_height = self.body_rig.waist_height if self.body_rig is not None else None
+        self.garment = build_garment(scene.cloth, scene.material, waist_height, scene.path)
         self.model = Model(self.garment, scene.simulation.precision,
-                           damping.scale if damping is not None else None,
-                           body_rig.sample_count if body_rig is not None else 2)
-        extra = body_rig.attach(self.model, scene.effects) if body_rig is not None else {}
-        self.forces = Forces(self.model, make_effects(scene.effects, extra),
-                             INTEGRATORS[scene.simulation.integrator].packs_springs)
-        collision = scene.effects.get("collision")
-        projection = body_rig.contact if collision is not None and \
-            collision.mode == "penalty+projection" else None
-        self.integrator = make_integrator(scene.simulation.integrator, self.forces, projection,
-                                          scene.simulation)
-        self.time_step = self._choose_time_step()
+                           **model_options(scene.effects))
+        if self.body_rig is not None:
+            self.control = self.body_rig.make_control(self.garment.pinned,
+                                                      self.garment.positions, self.model.real)
+        else:
+            self.control = Control(self.garment.pinned, self.garment.positions, self.model.real)
+        self.effects = build_effects(scene.effects, EffectContext(self.model, self.control))
+        self.control.upload()
+        integrator_class = INTEGRATORS[scene.simulation.integrator]
+        self.forces = Forces(self.model, self.effects,
+                             packed_grid_for(self.model, integrator_class.packs_springs))
+        post_steps = [e.post_step for e in self.effects if e.post_step is not None]
+        self.integrator = make_integrator(scene.simulation.integrator, self.forces, self.control,
+                                          post_steps[0] if post_steps else None, scene.simulation)
         self.state_in, self.state_out, self.backup = self.model.states(3)
-        self._compiled_batches = set()
-        self.gravity = scene.effects["gravity"].g if "gravity" in scene.effects else 0.0
+        self._compiled_variants = set()
+        self.time_step = self._choose_time_step()
+
+    @classmethod
+    def from_scene(cls, scene: Scene | str, overrides: tuple[str, ...] = ()) -> "Simulation":
+        """The simulation of ``scene``: a loaded ``Scene``, or a scene name or file with
+        ``--set`` style overrides (``config.scene.load_scene``)."""
+        if isinstance(scene, str):
+            scene = load_scene(scene, tuple(overrides))
+        return cls(scene)
 
     def _choose_time_step(self) -> TimeStep:
         scene, garment, model = self.scene, self.garment, self.model
-        contact_modes = [(config.stiffness, config.damping) for name, config
-                         in scene.effects.items() if name in ("collision", "ground")]
-        damping_time = garment.damping_time * scene.effects["damping"].scale \
-            if model.has_dashpots else 0.0
+        contact_modes = [mode for effect in self.effects for mode in effect.stability_modes()]
         return choose_time_step(
-            scene.simulation.dt, 1.0 / scene.scene.fps, scene.simulation.integrator,
+            scene.simulation.dt, self.frame_duration, scene.simulation.integrator,
             garment.positions, model.host_spring_ends, model.host_stiffness, garment.mass,
-            ~garment.pinned, damping_time, contact_modes, scene.simulation.safety)
+            ~garment.pinned, model.dashpot_time or 0.0, contact_modes, scene.simulation.safety)
+
+    def set_time_step(self, dt: float, substeps_per_frame: int) -> None:
+        """Step with dt [s], ``substeps_per_frame`` of them per frame (dt · substeps = the frame's
+        duration); what ``dt = "auto"`` estimated is kept for the report."""
+        self.time_step = dataclasses.replace(self.time_step, dt=dt,
+                                             substeps_per_frame=substeps_per_frame)
 
     @property
     def effect_names(self) -> list[str]:
         return self.forces.compiled_names
 
-    def frame_time(self, frame: int) -> float:
+    def frame_end_time(self, frame: int) -> float:
         """Simulated time [s] at the end of ``frame`` (0-based)."""
         return (frame + 1) / self.scene.scene.fps
 
     def positions(self) -> np.ndarray:
         return self.state_in.x.to_numpy().astype(np.float64)
+
+    def snapshot(self) -> Snapshot:
+        """Host copies of the current state, time step and integrator memory."""
+        return Snapshot(positions=self.positions(),
+                        velocities=self.state_in.v.to_numpy().astype(np.float64),
+                        dt=self.time_step.dt, substeps_per_frame=self.time_step.substeps_per_frame,
+                        integrator_memory=self.integrator.memory())
+
+    def restore(self, snapshot: Snapshot) -> None:
+        """Put a ``snapshot`` back: the next frame continues exactly from it."""
+        real = self.model.numpy_real
+        self.state_in.x.from_numpy(snapshot.positions.astype(real))
+        self.state_in.v.from_numpy(snapshot.velocities.astype(real))
+        self.set_time_step(snapshot.dt, snapshot.substeps_per_frame)
+        self.integrator.restore_memory(snapshot.integrator_memory)
 
     def state_problem(self, x: np.ndarray, v: np.ndarray) -> str | None:
         """Why the state is not usable (non-finite, over-strained or too fast), or None."""
@@ -127,19 +148,21 @@ class Simulation:
         return None
 
     def measure(self, frame: int, x: np.ndarray, v: np.ndarray) -> FrameMetrics:
-        """Metrics of a (checked) state x [m], v [m/s] at the end of ``frame``."""
+        """Metrics of a (checked) state x [m], v [m/s] at the end of ``frame``: energies
+        (kinetic; potential = the effects' + the springs'), strain, penetration, centre of mass."""
         mass = self.model.host_mass
         strain = stretch_strain(self.model, x) if self.model.stretch_count else np.zeros(1)
         kinetic = 0.5 * float(np.sum(mass * np.sum(v * v, axis=1)))
-        potential = self.gravity * float(np.sum(mass * x[:, 1])) + spring_energy(self.model, x)
-        penetration = self.body_rig.max_penetration(x) if self.body_rig is not None else 0.0
+        potential = sum(effect.potential_energy(x, mass) for effect in self.effects) \
+            + spring_energy(self.model, x)
+        penetration = max((effect.max_penetration(x) for effect in self.effects), default=0.0)
         return FrameMetrics(
-            frame=frame, t=self.frame_time(frame), kinetic_energy=kinetic,
+            frame=frame, t=self.frame_end_time(frame), kinetic_energy=kinetic,
             potential_energy=potential, max_strain=float(np.max(strain)),
             max_penetration=penetration,
             center_of_mass=[float(c) for c in np.sum(mass[:, None] * x, 0) / np.sum(mass)])
 
-    def guarded_frame(self, frame: int, record: "RunRecord") -> FrameMetrics:
+    def guarded_frame(self, frame: int, record: RunRecord) -> FrameMetrics:
         """Advance ``frame`` and check it. A bad frame is rolled back and retried with the step
         halved (the smaller step is kept for the rest of the run), up to
         ``simulation.max_retries`` times; then ``UnstableError``. Nothing non-finite leaves."""
@@ -158,9 +181,7 @@ class Simulation:
                 break
             record.retries += 1
             self.state_in.copy_from(self.backup)
-            self.time_step = dataclasses.replace(
-                self.time_step, dt=self.time_step.dt / 2,
-                substeps_per_frame=2 * self.time_step.substeps_per_frame)
+            self.set_time_step(self.time_step.dt / 2, 2 * self.time_step.substeps_per_frame)
         integrator = self.scene.simulation.integrator
         advice = "lower simulation.dt or set it to \"auto\", or use integrator = \"implicit\""
         if integrator == "euler":
@@ -169,9 +190,9 @@ class Simulation:
         raise UnstableError(f"frame {frame}: the cloth {problem} with integrator '{integrator}' "
                             f"at dt = {self.time_step.dt:.6g} s{halvings}; {advice}", frame)
 
-    def advance_frame(self, frame: int, record: "RunRecord") -> None:
-        """The substeps of ``frame`` (t from frame/fps to (frame+1)/fps), in the integrator's
-        launches (``Integrator.launch_counts``). The first launch of each kernel variant compiles
+    def advance_frame(self, frame: int, record: RunRecord) -> None:
+        """The substeps of ``frame`` (t from frame/fps to (frame+1)/fps), one kernel launch per
+        entry of ``Integrator.launch_counts``. The first launch of each kernel variant compiles
         it: its wall time goes to ``compile``, the rest to ``simulate``."""
         if self.body_rig is not None:
             self.body_rig.prepare_frame(frame)
@@ -181,11 +202,11 @@ class Simulation:
             t = frame / self.scene.scene.fps + done * dt
             variant = self.integrator.kernel_variant(count, self.state_in, self.state_out)
             started = time.perf_counter()
-            self.state_in, self.state_out = self.integrator.advance(
+            self.state_in, self.state_out = self.integrator.launch(
                 self.state_in, self.state_out, t, dt, count)
-            if variant not in self._compiled_batches:
+            if variant not in self._compiled_variants:
                 ti.sync()
-                self._compiled_batches.add(variant)
+                self._compiled_variants.add(variant)
                 record.wall_seconds["compile"] += time.perf_counter() - started
             else:
                 record.wall_seconds["simulate"] += time.perf_counter() - started
@@ -202,8 +223,8 @@ class Simulation:
         record = RunRecord() if record is None else record
         for frame in range(first_frame, frame_count):
             metrics = self.guarded_frame(frame, record)
-            if hasattr(self.integrator, "take_iterations"):
-                iterations = self.integrator.take_iterations()
+            iterations = self.integrator.take_iterations()
+            if iterations:
                 record.cg_iterations.extend(iterations)
                 metrics.cg_iterations = float(np.mean(iterations))
             record.frames.append(metrics)
@@ -222,7 +243,7 @@ class Simulation:
                        "unconverged_steps": self.integrator.unconverged_steps}}
 
     def stats(self, record: RunRecord) -> dict:
-        """The ``stats.json`` document (DESIGN.md, "Outputs")."""
+        """The ``stats.json`` document (README, "Outputs")."""
         scene = self.scene
         return {
             "scene": scene.name,

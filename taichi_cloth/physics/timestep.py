@@ -70,23 +70,29 @@ def highest_frequency(positions, ends, stiffness, mass, free, iterations: int = 
     return math.sqrt(max(min(1.1 * estimate, gershgorin), estimate, 0.0))
 
 
-def choose_time_step(requested, frame_time: float, integrator: str, positions, ends, stiffness,
+def fixed_time_step(requested: float, frame_duration: float) -> TimeStep:
+    """The step a scene with dt = ``requested`` [s] really takes: the frame of
+    ``frame_duration`` [s] split into the fewest equal substeps no longer than ``requested``."""
+    substeps = max(1, math.ceil(frame_duration / requested - 1e-9))
+    return TimeStep(frame_duration / substeps, substeps, requested)
+
+
+def choose_time_step(requested, frame_duration: float, integrator: str, positions, ends, stiffness,
                      mass, free, damping_time: float, contact_modes, safety: float) -> TimeStep:
-    """The substep for a frame of ``frame_time`` [s]; ``requested`` is seconds or "auto".
+    """The substep for a frame of ``frame_duration`` [s]; ``requested`` is seconds or "auto".
     contact_modes: (k̂ [1/s²], ζ) of each declared contact (collision, ground)."""
     if requested != "auto":
-        substeps = max(1, math.ceil(frame_time / requested - 1e-9))
-        return TimeStep(frame_time / substeps, substeps, requested)
+        return fixed_time_step(requested, frame_duration)
     omega_spring = highest_frequency(positions, ends, stiffness, mass, free)
     contact_stiffness = max((k for k, _ in contact_modes), default=0.0)
     omega_max = math.sqrt(omega_spring ** 2 + contact_stiffness)
     if integrator == "implicit":
         substeps = max(1, math.ceil(1.0 / IMPLICIT_FRAME_FRACTION - 1e-9))
-        return TimeStep(frame_time / substeps, substeps, "auto", omega_max, None)
+        return TimeStep(frame_duration / substeps, substeps, "auto", omega_max, None)
     stable = largest_stable_step(integrator, omega_max, damping_time, contact_modes)
     if stable <= 0.0:
         raise InputError(f"simulation.dt: \"auto\" finds no stable step for {integrator} "
                          f"(explicit Euler needs [effects.damping]); give dt in seconds or "
                          f"choose another integrator")
-    substeps = max(1, math.ceil(frame_time / (safety * stable) - 1e-9))
-    return TimeStep(frame_time / substeps, substeps, "auto", omega_max, stable)
+    substeps = max(1, math.ceil(frame_duration / (safety * stable) - 1e-9))
+    return TimeStep(frame_duration / substeps, substeps, "auto", omega_max, stable)

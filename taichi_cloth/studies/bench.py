@@ -24,14 +24,17 @@ import time
 import numpy as np
 import taichi as ti
 
-from taichi_cloth.effects.aerodynamics import Gravity
+from taichi_cloth.effects import EFFECTS
+from taichi_cloth.effects.gravity import Gravity, GravitySettings
 from taichi_cloth.physics.forces import Forces
 from taichi_cloth.cloth.garment import build_garment
 from taichi_cloth.physics.integrators import INTEGRATORS, make_integrator
 from taichi_cloth.config.materials import Material
 from taichi_cloth.physics.model import Model
 from taichi_cloth.runtime import start_taichi
-from taichi_cloth.config.scene import EFFECT_TYPES, ClothConfig, GravityEffect, load_scene
+from taichi_cloth.config.scene import ClothConfig, load_scene
+from taichi_cloth.physics.control import Control
+from taichi_cloth.physics.packed_grid import packed_grid_for
 
 REFERENCE_SPACING_M = 0.01
 REFERENCE_DT_S = 1.0 / 1920.0
@@ -125,8 +128,11 @@ def bench_reference(size: int, integrator_name: str, seconds: float, repeats: in
                     dt: float = REFERENCE_DT_S) -> dict:
     """The reference sheet with one integrator: substeps per second."""
     model = reference_model(size)
-    forces = Forces(model, [Gravity(GravityEffect())], INTEGRATORS[integrator_name].packs_springs)
-    integrator = make_integrator(integrator_name, forces)
+    packed = packed_grid_for(model, INTEGRATORS[integrator_name].packs_springs)
+    forces = Forces(model, [Gravity(GravitySettings())], packed)
+    control = Control(model.garment.pinned, model.garment.positions, model.real)
+    control.upload()
+    integrator = make_integrator(integrator_name, forces, control)
     states = model.states(2)
     batch = max(1, min(256, round(2e6 / model.particle_count)))
     clock = [0.0]
@@ -150,7 +156,7 @@ def bench_reference(size: int, integrator_name: str, seconds: float, repeats: in
 def bench_numpy(size: int, seconds: float, repeats: int) -> dict:
     """The reference sheet stepped by ``NumpyCloth``."""
     model = reference_model(size)
-    cloth = NumpyCloth(model, GravityEffect().g)
+    cloth = NumpyCloth(model, GravitySettings().g)
     state = [model.garment.positions.astype(np.float32),
              np.zeros((model.particle_count, 3), np.float32)]
 
@@ -196,14 +202,14 @@ class PassTimer:
         self.model = simulation.model
         self.serial = simulation.integrator.serial
         self.out = ti.Vector.field(3, self.model.real, self.model.particle_count)
-        rig = simulation.body_rig
-        self.contact = rig.contact if rig is not None else None
+        contacts = [e for e in simulation.effects if e.name == "collision"]
+        self.contact = contacts[0] if contacts else None
         self.has_contact = self.contact is not None
 
     @ti.func
     def _springs(self, state):
-        if ti.static(self.forces.has_grid):
-            self.forces.prepare_springs(state.x, state.v)
+        if ti.static(self.forces.has_packed):
+            self.forces.packed.spring_pass(state.x, state.v)
         else:
             for i_p in range(self.model.particle_count):
                 self.out[i_p] = self.forces.spring_force(state.x, state.v, i_p)
@@ -240,15 +246,13 @@ class PassTimer:
 
 def scene_simulation(scene_name: str, overrides: tuple = ()):
     """A Simulation of the scene (with its body, if any) after ``overrides``."""
-    from taichi_cloth.output.run import make_body_rig
     from taichi_cloth.physics.simulation import Simulation
-    scene = load_scene(scene_name, overrides)
-    return Simulation(scene, make_body_rig(scene))
+    return Simulation.from_scene(scene_name, overrides)
 
 
 def frame_rate(simulation, seconds: float, repeats: int) -> list[float]:
     """Substeps per second through ``advance_frame`` (body posing included), warm-up first."""
-    from taichi_cloth.physics.simulation import RunRecord
+    from taichi_cloth.physics.metrics import RunRecord
     record = RunRecord()
     frame = [0]
 
@@ -272,7 +276,7 @@ def bench_effects(scene_name: str, seconds: float, repeats: int) -> list[dict]:
     integrator = base.scene.simulation.integrator
     rows = [substep_row("scene", integrator, size, particles, base_rates,
                         scene=scene_name, effects=base.effect_names)]
-    for name in EFFECT_TYPES:
+    for name in (effect.name for effect in EFFECTS):
         declared = name in base.scene.effects
         other = scene_simulation(scene_name,
                                  (f"effects.{name}={'false' if declared else 'true'}",))

@@ -40,14 +40,14 @@ from pathlib import Path
 import numpy as np
 import taichi as ti
 
-from taichi_cloth.output.run import OUTPUT_ROOT, check_writable, make_body_rig
+from taichi_cloth.output.run import OUTPUT_ROOT, check_writable
 from taichi_cloth.errors import InputError, UnstableError
 from taichi_cloth.output.files import atomic_path, write_json
 from taichi_cloth.physics.integrators import INTEGRATORS
 from taichi_cloth.output.progress import Progress
 from taichi_cloth.config.scene import load_scene
 from taichi_cloth.physics.simulation import RunRecord, Simulation
-from taichi_cloth.physics.timestep import IMPLICIT_FRAME_FRACTION, TimeStep
+from taichi_cloth.physics.timestep import IMPLICIT_FRAME_FRACTION, TimeStep, fixed_time_step
 
 REFERENCE_INTEGRATOR = "rk4"
 REFERENCE_REFINEMENT = 4  # reference dt = smallest swept dt / this (RK4: 256× more accurate)
@@ -99,13 +99,6 @@ def seconds_value(text: str | None, flag: str) -> float | None:
     if len(values) > 1:
         raise InputError(f"{flag} {text}: expected one number of seconds")
     return values[0] if values else None
-
-
-def frame_time_step(dt: float, frame_time: float) -> TimeStep:
-    """The step a scene with ``dt`` [s] really takes: the frame split into equal substeps no
-    longer than dt (as ``timestep.choose_time_step`` does for a fixed dt)."""
-    substeps = max(1, math.ceil(frame_time / dt - 1e-9))
-    return TimeStep(frame_time / substeps, substeps, dt)
 
 
 def default_dts(limits: dict, frame_time: float) -> tuple[float, ...]:
@@ -165,8 +158,7 @@ class Runner:
         self.omega_max = None  # the cloth's highest angular frequency [rad/s], contact included
 
     def _build(self, extra: list[str]) -> Simulation:
-        scene = load_scene(self.scene_name, self.overrides + tuple(extra))
-        return Simulation(scene, make_body_rig(scene))
+        return Simulation.from_scene(self.scene_name, self.overrides + tuple(extra))
 
     def simulation(self, integrator: str, precision: str = "") -> tuple[Simulation, object]:
         """The simulation of ``integrator`` (``precision``: force "f64"/"f32", "" = scene's)."""
@@ -183,7 +175,7 @@ class Runner:
             except InputError:  # "auto" finds no stable step: explicit Euler without dashpots
                 simulation = self._build(extra + ["simulation.dt=1.0"])
                 self.limits.setdefault(integrator, 0.0)
-            self.simulations[key] = (simulation, simulation.model.state())
+            self.simulations[key] = (simulation, simulation.snapshot())
         return self.simulations[key]
 
     def run(self, integrator: str, time_step: TimeStep, progress: Progress, precision: str = "",
@@ -219,8 +211,8 @@ class Runner:
     @staticmethod
     def _simulate(simulation: Simulation, rest, integrator: str, time_step: TimeStep,
                   frame_count: int, progress: Progress | None = None) -> Run:
-        simulation.state_in.copy_from(rest)
-        simulation.time_step = time_step
+        simulation.restore(rest)
+        simulation.set_time_step(time_step.dt, time_step.substeps_per_frame)
         run = Run(integrator, time_step)
 
         def on_frame(frame, metrics):
@@ -238,7 +230,7 @@ class Runner:
             simulation.run(frame_count, on_frame, record)
         except UnstableError as error:
             run.stable = False
-            run.blowup_time = simulation.frame_time(error.frame)
+            run.blowup_time = simulation.frame_end_time(error.frame)
             rejected = simulation.positions()  # max_retries = 0: the frame was not rolled back
             if np.isfinite(rejected).all():
                 run.blowup_positions = rejected
@@ -314,7 +306,7 @@ def unique_steps(dts, frame_time: float) -> list[TimeStep]:
     count (two requests that round to the same step run once)."""
     steps = {}
     for dt in sorted(dts, reverse=True):
-        step = frame_time_step(dt, frame_time)
+        step = fixed_time_step(dt, frame_time)
         steps.setdefault(step.substeps_per_frame, step)
     return list(steps.values())
 
@@ -368,10 +360,10 @@ def compare(scene_name: str, overrides: list[str], integrators: str | None = Non
     scene, frame_time = simulation.scene, 1.0 / simulation.scene.scene.fps
     steps = unique_steps(requested_dts or default_dts({name: runner.limits[name] for name in names},
                                                        frame_time), frame_time)
-    reference_step = frame_time_step(reference_seconds or steps[-1].dt / REFERENCE_REFINEMENT,
+    reference_step = fixed_time_step(reference_seconds or steps[-1].dt / REFERENCE_REFINEMENT,
                                      frame_time)
     extra_video = video and video_seconds is not None and \
-        frame_time_step(video_seconds, frame_time).dt not in [s.dt for s in steps]
+        fixed_time_step(video_seconds, frame_time).dt not in [s.dt for s in steps]
     run_count = 1 + len(names) * (len(steps) + extra_video)
     with Progress(f"compare {scene.name}", run_count * scene.frame_count, quiet) as progress:
         reference = runner.run(REFERENCE_INTEGRATOR, reference_step, progress, "f64",
@@ -385,7 +377,7 @@ def compare(scene_name: str, overrides: list[str], integrators: str | None = Non
         simulated = scene.frame_count * frame_time
         free = ~simulation.garment.pinned
         rows = [result_row(run, reference, free, simulated) for run in runs]
-        shown = frame_time_step(video_seconds, frame_time) if video_seconds is not None else \
+        shown = fixed_time_step(video_seconds, frame_time) if video_seconds is not None else \
             video_step(rows, steps, names)
         shown_runs = [run for run in runs if run.time_step.dt == shown.dt]
         if video and not shown_runs:

@@ -12,7 +12,7 @@ particle updates) and runs many per launch, in one of two ways:
   serial loop over substeps around serial particle loops, on one thread.
 
 Substep k reads state ``a`` and writes ``b`` when k is even, the reverse when odd; it is also
-told ``k % 2``, the packed copy (``forces.pack``) that holds its input when the integrator carries
+told ``k % 2``, the packed copy (``PackedGrid.pack``) that holds its input when the integrator carries
 a packed state from substep to substep, which ``begin_launch`` fills at the start of a launch
 (and ``end_launch`` may unpack at its end).
 An optional ``post_step`` (the contact projection) runs after each substep.
@@ -31,18 +31,24 @@ SERIAL_PARTICLE_LIMIT = 32768
 
 @ti.data_oriented
 class Integrator:
-    """Base of the integrators: subclasses define ``substep(state_in, state_out, t, dt,
-    buffer)`` and may define ``begin_launch(state)``."""
+    """Base of the integrators. A subclass sets ``name`` and defines ``substep(state_in,
+    state_out, t, dt, buffer)``, a ``@ti.func`` (one substep: forces from ``self.forces``, pinned
+    particles from ``self.control.pin_target``); it may define ``begin_launch``/``end_launch``,
+    and ``memory``/``restore_memory`` for what it carries between steps. Callers use ``step``
+    (one substep), ``launch`` (one kernel launch) or ``advance`` (any count)."""
 
     name = ""
     packs_springs = False  # one force evaluation per substep: worth the SIMD spring pass
     substep_batch = 2  # parallel substeps per kernel launch (each unrolled copy adds compile time)
     serial_particle_limit = SERIAL_PARTICLE_LIMIT  # cloth this small runs on one thread
 
-    def __init__(self, forces: Forces, post_step=None):
-        """post_step: an object with a ``@ti.func apply(state, t)`` run after every substep."""
+    def __init__(self, forces: Forces, control, post_step=None):
+        """control: the prescribed motion (``physics.control.Control``: where pinned particles
+        are); post_step: an object with a ``@ti.func apply(state, t)`` run after every
+        substep."""
         self.forces = forces
         self.model = forces.model
+        self.control = control
         self.post_step = post_step
         self.has_post_step = post_step is not None
         self.serial = self.model.particle_count <= self.serial_particle_limit
@@ -70,17 +76,26 @@ class Integrator:
 
     def step(self, state_in, state_out, t: float, dt: float) -> None:
         """One substep from state_in at time t [s] into state_out."""
-        self._launch(state_in, state_out, t, dt, 1)
+        self.launch(state_in, state_out, t, dt, 1)
+
+    def launch(self, state_a, state_b, t: float, dt: float, count: int):
+        """One kernel launch of ``count`` substeps (an entry of ``launch_counts``) from state_a at
+        time t [s]; returns (newest state, the other one)."""
+        self._launch(state_a, state_b, t, dt, count)
+        return (state_b, state_a) if count % 2 else (state_a, state_b)
 
     def advance(self, state_a, state_b, t: float, dt: float, count: int):
-        """``count`` substeps from state_a at time t; returns (newest state, the other one)."""
+        """``count`` substeps from state_a at time t, in ``launch_counts`` launches; returns
+        (newest state, the other one)."""
         done = 0
         for launch in self.launch_counts(count):
-            self._launch(state_a, state_b, t + done * dt, dt, launch)
-            if launch % 2:
-                state_a, state_b = state_b, state_a
+            state_a, state_b = self.launch(state_a, state_b, t + done * dt, dt, launch)
             done += launch
         return state_a, state_b
+
+    def take_iterations(self) -> list[int]:
+        """Solver iterations per step since the last call (an iterative solver's; none here)."""
+        return []
 
     def _launch(self, a, b, t: float, dt: float, count: int) -> None:
         if not self.serial:

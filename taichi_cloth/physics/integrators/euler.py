@@ -12,29 +12,31 @@ uses the *future* velocity: that is the symplectic method implemented here; cf. 
 force gather and the update fuse into one loop over the particles. Pinned particles (inverse mass
 0) take their pin target at t + h.
 
-On a grid cloth (``forces.has_grid``) a substep is one loop over the packed groups: the SIMD
-spring pass of a group, then the update of its particles, then their new state packed into the
-other packed copy (on a periodic grid, the groups holding wrapped columns are packed after the
-loop, when every column is done). The packed state is thus carried from substep to substep and
-packed from the state only once per launch (``begin_launch``), or again after every projection
-pass (``post_step`` moves particles behind the update's back). One loop per substep instead of
-three (pack, springs, update) saves two thread-pool hand-offs of ~40 µs each on this machine.
+A substep takes one of three paths, chosen at compile time:
 
-When every effect is a uniform acceleration (gravity) and there is no projection, the update too
-runs in the lanes (``lane_step_function``): the packed state is stepped as whole vectors, pins are
-set afterwards, and x, v are unpacked once at the end of the launch (``end_launch``). One thread:
-8 ns per particle-substep instead of 14 (docs/performance.md).
+- gather: ``Forces.prepare`` then one loop over the particles, each gathering its springs through
+  the CSR lists (any cloth);
+- packed: on a packed grid (``forces.packed``, ``physics.packed_grid``) one loop over the packed
+  groups: the SIMD spring pass of a group, the update of its particles (any effects), then their
+  new state packed into the other packed copy (on a periodic grid, the groups holding wrapped
+  columns are packed after the loop, when every column is done). The packed state is carried
+  from substep to substep and packed from the state only once per launch (``begin_launch``), or
+  again after every projection pass (``post_step`` moves particles behind the update's back).
+  One loop per substep instead of three (pack, springs, update) saves two thread-pool hand-offs;
+- lanes: when every force effect is a uniform acceleration (gravity) and there is no projection,
+  the update too runs in the SIMD lanes (``lane_step_function``): the packed state is stepped as
+  whole vectors, pins are set afterwards, and x, v are unpacked once at the end of the launch
+  (``end_launch``). docs/performance.md has what each path costs.
 """
 
 import taichi as ti
 
-from taichi_cloth.physics.forces import group_pass_function
-from taichi_cloth.physics.model import SIMD_LANES
 from taichi_cloth.physics.integrators.base import Integrator
+from taichi_cloth.physics.packed_grid import group_pass_function
 
 
 def lane_step_function(forces, uses_new_velocity: bool):
-    """A ``ti.func`` finishing ``forces.group_pass_function``: step one packed group of lanes
+    """A ``ti.func`` finishing ``packed_grid.group_pass_function``: step one packed group of lanes
     from packed copy ``buffer`` into the other with its spring forces f: a = M⁻¹·f + Σ uniform
     accelerations (free lanes only), v' = v + h·a, x' = x + h·v' (symplectic) or x + h·v
     (explicit). Pinned and halo lanes have inverse mass 0 and coast (``EulerStep`` sets the pins
@@ -42,7 +44,8 @@ def lane_step_function(forces, uses_new_velocity: bool):
     model = forces.model
     real = model.real
     acceleration = forces.uniform_acceleration
-    packed_x, packed_v, packed_inv_mass = forces.packed_x, forces.packed_v, forces.packed_inv_mass
+    packed = forces.packed
+    packed_x, packed_v, packed_inv_mass = packed.packed_x, packed.packed_v, packed.packed_inv_mass
 
     @ti.func
     def lane_step(buffer, row, group, h, f_x, f_y, f_z):
@@ -72,86 +75,85 @@ class EulerStep(Integrator):
     packs_springs = True
     substep_batch = 8  # a launch costs ~20–45 µs from Python; the 8 copies compile in ~9 s
 
-    def __init__(self, forces, post_step=None):
-        super().__init__(forces, post_step)
-        # The whole step in SIMD lanes: a grid whose effects are uniform accelerations, and no
-        # projection (which moves particles in the unpacked state).
-        self.steps_lanes = forces.has_grid and forces.uniform_effects_only \
-            and not self.has_post_step
-        if self.steps_lanes:
+    def __init__(self, forces, control, post_step=None):
+        super().__init__(forces, control, post_step)
+        self.packed = forces.packed
+        self.has_packed = forces.has_packed
+        # The whole step in SIMD lanes: a packed grid whose force effects are uniform
+        # accelerations, and no projection (which moves particles in the unpacked state).
+        self.steps_in_lanes = self.has_packed \
+            and forces.uniform_acceleration is not None and not self.has_post_step
+        if self.steps_in_lanes:
             self.group_step = group_pass_function(
-                self.model, forces.packed_x, forces.packed_v,
+                self.model, self.packed.packed_x, self.packed.packed_v,
                 lane_step_function(forces, self.uses_new_velocity))
 
     @ti.func
     def begin_launch(self, state):
-        if ti.static(self.forces.has_grid):
-            self.forces.pack(state.x, state.v, 0,
-                             ti.static(self.steps_lanes or self.model.has_dashpots))
+        if ti.static(self.has_packed):
+            self.packed.pack(state.x, state.v, 0,
+                             ti.static(self.steps_in_lanes or self.model.has_dashpots))
 
     @ti.func
     def end_launch(self, state, buffer):
-        if ti.static(self.steps_lanes):
-            self.forces.unpack(buffer, state)
+        if ti.static(self.steps_in_lanes):
+            self.packed.unpack(buffer, state)
 
     @ti.func
     def substep(self, state_in, state_out, t, dt, buffer):
         """One step from state_in (packed copy ``buffer`` on a grid) at t [s] into state_out
-        (into packed copy 1 − buffer only, when ``steps_lanes``: unpacked at the launch's end)."""
-        forces = self.forces
-        if ti.static(self.steps_lanes):
-            self._lane_substep(t, dt, buffer)
-        elif ti.static(forces.has_grid):
-            self._grid_substep(state_in, state_out, t, dt, buffer)
+        (into packed copy 1 − buffer only, when ``steps_in_lanes``: unpacked at the launch's
+        end)."""
+        if ti.static(self.steps_in_lanes):
+            self._lanes_substep(t, dt, buffer)
+        elif ti.static(self.has_packed):
+            self._packed_substep(state_in, state_out, t, dt, buffer)
         else:
-            forces.prepare(state_in.x, state_in.v, t)
-            for i_p in range(self.model.particle_count):
-                self._update(state_in, state_out, i_p, t, dt)
+            self._gather_substep(state_in, state_out, t, dt)
 
     @ti.func
-    def _lane_substep(self, t, dt, buffer):
+    def _gather_substep(self, state_in, state_out, t, dt):
+        """``Forces.prepare``, then every particle's update (its springs gathered)."""
+        self.forces.prepare(state_in.x, state_in.v, t)
+        for i_p in range(self.model.particle_count):
+            self._update(state_in, state_out, i_p, t, dt)
+
+    @ti.func
+    def _lanes_substep(self, t, dt, buffer):
         """``group_step`` for every group, then the pins set to their targets at t + h."""
-        model, forces = self.model, self.forces
+        model, packed = self.model, self.packed
         grid = model.grid
         h = ti.cast(dt, model.real)
-        for row, group in ti.ndrange(grid.rows, ti.static(forces.filled_groups)):
+        for row, group in ti.ndrange(grid.rows, ti.static(packed.filled_groups)):
             self.group_step(buffer, row, group, h)
-            if forces.group_has_pin[row, group]:
-                first, end = self._group_particles(row, group)
+            if packed.group_has_pin[row, group]:
+                first, end = packed.group_particles(row, group)
                 for i_p in range(first, end):
                     if model.particle_inv_mass[i_p] == 0:
-                        x_pin, v_pin = model.pin_target(i_p, t + dt)
-                        forces.store_lane(1 - buffer, i_p, x_pin, v_pin)
+                        x_pin, v_pin = self.control.pin_target(i_p, t + dt)
+                        packed.store_lane(1 - buffer, i_p, x_pin, v_pin)
         if ti.static(grid.periodic):
-            forces.refresh_halo(1 - buffer)
+            packed.refresh_halo(1 - buffer)
 
     @ti.func
-    def _grid_substep(self, state_in, state_out, t, dt, buffer):
+    def _packed_substep(self, state_in, state_out, t, dt, buffer):
         """The SIMD spring pass and the per-particle update (any effects), group by group."""
-        forces = self.forces
+        packed = self.packed
         grid = self.model.grid
-        forces.prepare_effects(t)
+        self.forces.prepare_effects(t)
         if ti.static(self.has_post_step):
-            forces.pack(state_in.x, state_in.v, buffer, self.model.has_dashpots)
-        for row, group in ti.ndrange(grid.rows, ti.static(forces.filled_groups)):
-            forces.group_springs(buffer, row, group, 0.0)
-            first, end = self._group_particles(row, group)
+            packed.pack(state_in.x, state_in.v, buffer, self.model.has_dashpots)
+        for row, group in ti.ndrange(grid.rows, ti.static(packed.filled_groups)):
+            packed.group_springs(buffer, row, group, 0.0)
+            first, end = packed.group_particles(row, group)
             for i_p in range(first, end):
                 self._update(state_in, state_out, i_p, t, dt)
             if ti.static(not self.has_post_step):  # else the next substep packs after it
-                if ti.static(not grid.periodic) or group <= forces.last_own_group:
-                    forces.pack_group(state_out.x, state_out.v, 1 - buffer, row, group,
+                if ti.static(not grid.periodic) or group <= packed.last_own_group:
+                    packed.pack_group(state_out.x, state_out.v, 1 - buffer, row, group,
                                       self.model.has_dashpots)
         if ti.static(grid.periodic and not self.has_post_step):  # wrapped columns: other groups
-            forces.pack_halo(state_out.x, state_out.v, 1 - buffer, self.model.has_dashpots)
-
-    @ti.func
-    def _group_particles(self, row, group):
-        """The particles of packed group ``group`` of row ``row``: (first, last + 1)."""
-        grid = self.model.grid
-        first_column = (group - 1) * SIMD_LANES
-        return (row * grid.columns + first_column,
-                row * grid.columns + ti.min(first_column + SIMD_LANES, grid.columns))
+            packed.pack_halo(state_out.x, state_out.v, 1 - buffer, self.model.has_dashpots)
 
     @ti.func
     def _update(self, state_in, state_out, i_p, t, dt):
@@ -161,7 +163,7 @@ class EulerStep(Integrator):
         h = ti.cast(dt, model.real)
         inv_mass = model.particle_inv_mass[i_p]
         if inv_mass == 0:
-            x_out[i_p], v_out[i_p] = model.pin_target(i_p, t + dt)
+            x_out[i_p], v_out[i_p] = self.control.pin_target(i_p, t + dt)
         else:
             acceleration = inv_mass * self.forces.particle_force(x, v, i_p, ti.cast(t, model.real))
             v_new = v[i_p] + h * acceleration

@@ -20,7 +20,7 @@ direction n = (x_j − x_i)/|x_j − x_i| and the two scalars of the spring's bl
     A_s = a_s·n·nᵀ + b_s·I,   a_s = h·c + h²·k·(1 − g),   b_s = h²·k·g,   g = max(1 − L/l, 0)
 
 (``forces.Forces.spring_axis`` with the definite clamp: h·D_s + h²·K_s), and for every particle
-its own block L_i = m_i·I − h·D_loc − h²·K_loc from the effects with ``has_local_jacobian``
+its own block L_i = m_i·I − h·D_loc − h²·K_loc from the effects with ``has_jacobian``
 (contact, drag, wind; just m_i·I without them). A product then gathers in the fixed CSR order:
 
     (A·u)_i = L_i·u_i + Σ_k [a_k·(n_k·(u_i − u_j))·n_k + b_k·(u_i − u_j)]      (A in kg).
@@ -81,20 +81,19 @@ class BackwardEuler(Integrator):
     name = "implicit"
     substep_batch = 1
 
-    def __init__(self, forces, post_step=None, tolerance: float = 1e-3,
+    def __init__(self, forces, control, post_step=None, tolerance: float = 1e-3,
                  max_iterations: int = 500, newton_iterations: int = 1, warm_start: bool = True):
         """tolerance: relative preconditioned residual √(r·P⁻¹r / r₀·P⁻¹r₀) at which CG stops
         (r₀ the residual of the cold start δ = 0); warm_start: start each step's first solve from
         the last step's velocity change (module docstring)."""
-        super().__init__(forces, post_step)
+        super().__init__(forces, control, post_step)
         model = self.model
         n, real = model.particle_count, model.real
         self.tolerance = tolerance
         self.max_iterations = max_iterations
         self.newton_iterations = newton_iterations
         self.warm_start = warm_start
-        self.has_local_blocks = any(getattr(e, "has_local_jacobian", False)
-                                    for e in forces.effects)
+        self.has_local_blocks = bool(forces.jacobian_effects)
         self.start = State(n, real)  # the step's (x₀, v₀)
         self.candidate = State(n, real)
         self.delta_v = ti.Vector.field(3, real, n)
@@ -141,7 +140,8 @@ class BackwardEuler(Integrator):
         taken, self.step_iterations = self.step_iterations, []
         return taken
 
-    def advance(self, state_a: State, state_b: State, t: float, dt: float, count: int):
+    def launch(self, state_a: State, state_b: State, t: float, dt: float, count: int):
+        """``count`` steps, each its own launches (the Newton and CG loops run in Python)."""
         for k in range(count):
             self.step(state_a, state_b, t + k * dt, dt)
             state_a, state_b = state_b, state_a
@@ -420,7 +420,7 @@ class BackwardEuler(Integrator):
         for i_p in state.x:
             self.start.x[i_p], self.start.v[i_p] = state.x[i_p], state.v[i_p]
             if model.particle_inv_mass[i_p] == 0:
-                self.candidate.x[i_p], self.candidate.v[i_p] = model.pin_target(i_p, t + dt)
+                self.candidate.x[i_p], self.candidate.v[i_p] = self.control.pin_target(i_p, t + dt)
             else:
                 self.candidate.v[i_p] = state.v[i_p]
                 self.candidate.x[i_p] = state.x[i_p] + h * state.v[i_p]
@@ -468,12 +468,11 @@ class BackwardEuler(Integrator):
         own_diagonal = ti.Vector.zero(real, 3) + model.particle_mass[i_p]
         if ti.static(self.has_local_blocks):
             local = model.particle_mass[i_p] * ti.Matrix.identity(real, 3)
-            effects = self.forces.effects
+            effects = self.forces.jacobian_effects
             for e in ti.static(range(len(effects))):
-                if ti.static(getattr(effects[e], "has_local_jacobian", False)):
-                    stiffness_block, damping_block = effects[e].local_jacobian(
-                        model, x, v, i_p, time, True)
-                    local -= h * damping_block + h * h * stiffness_block
+                stiffness_block, damping_block = effects[e].local_jacobian(
+                    model, x, v, i_p, time, True)
+                local -= h * damping_block + h * h * stiffness_block
             self.local_block[i_p] = local
             own_diagonal = ti.Vector([local[c, c] for c in ti.static(range(3))])
         self.inverse_diagonal[i_p] = 1.0 / (spring_diagonal + own_diagonal)

@@ -32,8 +32,8 @@ class RungeKutta4(Integrator):
     # early (bench, 64²: 6.6e6 particle-substeps/s parallel, 5.3e6 serial)
     serial_particle_limit = 2048
 
-    def __init__(self, forces, post_step=None):
-        super().__init__(forces, post_step)
+    def __init__(self, forces, control, post_step=None):
+        super().__init__(forces, control, post_step)
         n, real = self.model.particle_count, self.model.real
         self.stage = (State(n, real), State(n, real))
         self.sum_x = ti.Vector.field(3, real, n)
@@ -74,14 +74,15 @@ class RungeKutta4(Integrator):
                 self.sum_v[i_p] += w * slope_v
             if ti.static(position == 2):
                 if model.particle_inv_mass[i_p] == 0:
-                    out.x[i_p], out.v[i_p] = model.pin_target(i_p, t + dt)
+                    out.x[i_p], out.v[i_p] = self.control.pin_target(i_p, t + dt)
                 else:
                     out.x[i_p] = start.x[i_p] + h * self.sum_x[i_p]
                     out.v[i_p] = start.v[i_p] + h * self.sum_v[i_p]
             elif model.particle_inv_mass[i_p] == 0:
                 # the next stage sees a moving pin where it really is: a straight line from
                 # x_n made the neighbours' anchor O(h²) off and RK4 second order on a dancer
-                out.x[i_p], out.v[i_p] = model.pin_target(i_p, t + ti.f64(next_fraction) * dt)
+                out.x[i_p], out.v[i_p] = self.control.pin_target(
+                    i_p, t + ti.f64(next_fraction) * dt)
             else:
                 out.x[i_p] = start.x[i_p] + c * h * slope_x
                 out.v[i_p] = start.v[i_p] + c * h * slope_v

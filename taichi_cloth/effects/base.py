@@ -1,0 +1,85 @@
+"""The protocol every effect follows: one class per effect, one file per class.
+
+An effect is everything a scene may declare under ``[effects.<name>]``: gravity, the springs'
+dashpots, air drag, wind, contact with the body or the ground. The scene turns its declared
+tables into a list of effect objects once (``build_effects``); the force evaluation, the implicit
+solver, the time-step choice and the per-frame metrics then iterate that list, the kernels under
+``ti.static``, so an effect the scene does not declare emits no code at all (the pattern of
+Genesis' ``force_fields.py``). What an effect declares:
+
+- ``name`` and ``Settings``: its scene table and that table's keys (a frozen dataclass of
+  ``settings.setting`` fields; defaults, kinds, bounds, units).
+- ``__init__(settings, context)``: what it allocates (Taichi fields), given the ``EffectContext``.
+- ``force(model, x, v, i_p, t)``: a ``@ti.func`` returning its force on particle i_p [N], gathered
+  per particle (no atomics); ``has_force = False`` when it acts elsewhere (the dashpots act
+  inside the spring pass, ``model_options``).
+- ``prepare(t)``: a ``@ti.func`` run once per force evaluation before the particle loops (posing
+  the capsules); nothing by default.
+- ``has_jacobian`` and ``local_jacobian(model, x, v, i_p, t, definite)``: its per-particle blocks
+  (∂f_i/∂x_i, ∂f_i/∂v_i) for the implicit solver, or ``has_jacobian = False`` when it has none
+  (a constant force).
+- ``uniform_acceleration``: (a_x, a_y, a_z) [m/s²] when its force is m·a for every free particle
+  (gravity), which lets a grid cloth step in SIMD lanes; None otherwise.
+- ``stability_modes()``: the (k̂ [1/s²], ζ) of each stiff mode it adds, for ``dt = "auto"``.
+- ``potential_energy(x, mass)`` [J] and ``max_penetration(x)`` [m]: its per-frame metrics.
+- ``post_step``: an object with a ``@ti.func apply(state, t)`` to run after every substep (the
+  contact projection), or None.
+
+Every value an effect reads that is fixed for the run is baked in at compile time, as
+``model.real(value)`` so that it keeps the model's precision; the time t is a kernel argument.
+To add an effect: write ``effects/<name>.py`` with its ``Settings`` and its class, and list the
+class in ``EFFECTS`` (``effects/__init__.py``).
+"""
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import taichi as ti
+
+
+@dataclass(frozen=True)
+class EffectContext:
+    """What an effect may build on: the cloth's constant ``physics.model.Model`` and the
+    prescribed motion ``physics.control.Control`` (pinned particles, the body's capsules)."""
+
+    model: Any
+    control: Any = None
+
+
+@ti.data_oriented
+class Effect:
+    """Base of the effects: no force, no Jacobian, no metrics; subclasses declare what they add
+    (module docstring)."""
+
+    name = ""
+    Settings = None
+    has_force = True
+    has_jacobian = False
+    needs_body = False  # the scene must have a [body] section
+    uniform_acceleration = None
+    post_step = None
+
+    def __init__(self, settings, context: EffectContext):
+        self.settings = settings
+
+    @staticmethod
+    def model_options(settings) -> dict:
+        """Keyword arguments this effect adds to ``Model`` (before it exists): none here."""
+        return {}
+
+    @ti.func
+    def prepare(self, t):
+        """Per-evaluation work before the particle loops: nothing here."""
+
+    def stability_modes(self) -> list[tuple[float, float]]:
+        """(k̂ [1/s²], ζ) of the stiff modes this effect adds: none here."""
+        return []
+
+    def potential_energy(self, x: np.ndarray, mass: np.ndarray) -> float:
+        """Potential energy [J] of positions x [m] (N, 3) with masses [kg]: none here."""
+        return 0.0
+
+    def max_penetration(self, x: np.ndarray) -> float:
+        """Deepest penetration [m] of positions x at the end of the frame: none here."""
+        return 0.0

@@ -1,0 +1,49 @@
+"""Still-air drag: the face pressure (``aerodynamics``) of air at rest on each moving face."""
+
+from dataclasses import dataclass
+
+import taichi as ti
+
+from taichi_cloth.effects.aerodynamics import face_damping, face_pressure, face_velocity
+from taichi_cloth.effects.base import Effect
+from taichi_cloth.settings import setting
+
+
+@dataclass(frozen=True)
+class DragSettings:
+    coefficient: float = setting(1.0, "float", low=0.0, doc="drag coefficient C_d of a face")
+    air_density: float = setting(1.2, "float", low=0.0, doc="kg/m³")
+
+
+@ti.data_oriented
+class Drag(Effect):
+    """Still-air drag through each face: the pressure of air at rest on a face moving at the
+    mean velocity of its corners, a third to each corner [N]."""
+
+    name = "drag"
+    Settings = DragSettings
+    has_jacobian = True  # drag is stiff on light cloth: the implicit solver treats it so
+
+    def __init__(self, settings: DragSettings, context=None):
+        super().__init__(settings, context)
+        self.factor = 0.5 * settings.air_density * settings.coefficient
+
+    @ti.func
+    def force(self, model, x, v, i_p, t):
+        f = ti.Vector.zero(model.real, 3)
+        for k in range(model.particle_triangle_start[i_p], model.particle_triangle_start[i_p + 1]):
+            i_t = model.particle_triangle[k]
+            f += face_pressure(model, x, i_t, -face_velocity(model, v, i_t))
+        return model.real(self.factor) / 3.0 * f
+
+    @ti.func
+    def local_jacobian(self, model, x, v, i_p, t, definite: ti.template()):
+        """(0, ∂f/∂v_i): the faces' ``face_damping`` for still air, negative semi-definite.
+        Explicit quadratic drag overshoots at large steps on light cloth
+        (h·ρ_air·C_d·|u|/ρ_cloth > 2 in a gale)."""
+        damping = ti.Matrix.zero(model.real, 3, 3)
+        for k in range(model.particle_triangle_start[i_p], model.particle_triangle_start[i_p + 1]):
+            i_t = model.particle_triangle[k]
+            normal, weight = face_damping(model, x, i_t, -face_velocity(model, v, i_t))
+            damping -= weight * normal.outer_product(normal)
+        return ti.Matrix.zero(model.real, 3, 3), model.real(self.factor) * damping

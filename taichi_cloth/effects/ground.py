@@ -1,0 +1,68 @@
+"""Contact with the ground plane: the penalty force of ``penalty`` against y = height."""
+
+from dataclasses import dataclass
+
+import taichi as ti
+
+from taichi_cloth.effects.base import Effect
+from taichi_cloth.effects.penalty import (normal_force_magnitude, penalty_damping_block,
+                                          penalty_force)
+from taichi_cloth.settings import setting
+
+
+@dataclass(frozen=True)
+class GroundSettings:
+    height: float = setting(0.0, "float", doc="y of the ground plane, m")
+    stiffness: float = setting(1e5, "float", low=0.0, low_inclusive=False,
+                               doc="penalty stiffness per unit particle mass, 1/s²")
+    damping: float = setting(0.1, "float", low=0.0, doc="normal damping ratio ζ")
+    friction: float = setting(0.5, "float", low=0.0, doc="Coulomb coefficient μ")
+    thickness: float = setting(0.005, "float", low=0.0, doc="contact margin above the plane, m")
+
+
+@ti.data_oriented
+class GroundContact(Effect):
+    """Penalty contact with the plane y = height (plus margin), at rest."""
+
+    name = "ground"
+    Settings = GroundSettings
+    has_jacobian = True
+
+    def __init__(self, settings: GroundSettings, context=None):
+        super().__init__(settings, context)
+        config = settings
+        self.surface_height = config.height + config.thickness
+        self.stiffness, self.damping_ratio = config.stiffness, config.damping
+        self.friction = config.friction
+
+    @ti.func
+    def force(self, model, x, v, i_p, t):
+        real = model.real
+        depth = real(self.surface_height) - x[i_p][1]
+        f = ti.Vector.zero(real, 3)
+        if depth > 0:
+            f = penalty_force(model.particle_mass[i_p], depth, ti.Vector([0.0, 1.0, 0.0], dt=real),
+                              v[i_p], real(self.stiffness), real(self.damping_ratio),
+                              real(self.friction))
+        return f
+
+    @ti.func
+    def local_jacobian(self, model, x, v, i_p, t, definite: ti.template()):
+        """(∂f/∂x, ∂f/∂v) of the penalty: −m·k̂·e_y·e_yᵀ (exact for a plane, so ``definite``
+        changes nothing) and ``penalty_damping_block``; nothing while the normal force is
+        clamped to 0."""
+        real = model.real
+        stiffness_block = ti.Matrix.zero(real, 3, 3)
+        damping_block = ti.Matrix.zero(real, 3, 3)
+        depth = real(self.surface_height) - x[i_p][1]
+        mass = model.particle_mass[i_p]
+        if depth > 0 and normal_force_magnitude(mass, depth, v[i_p][1], real(self.stiffness),
+                                                real(self.damping_ratio)) > 0:
+            stiffness_block[1, 1] = -mass * real(self.stiffness)
+            damping_block = penalty_damping_block(
+                mass, depth, ti.Vector([0.0, 1.0, 0.0], dt=real), v[i_p], real(self.stiffness),
+                real(self.damping_ratio), real(self.friction), real)
+        return stiffness_block, damping_block
+
+    def stability_modes(self) -> list[tuple[float, float]]:
+        return [(self.stiffness, self.damping_ratio)]

@@ -1,0 +1,90 @@
+"""Penalty contact with friction, shared by the body's capsules (``collision``) and the ground.
+
+Seed §2.6: bones are capsules (a segment a–b and a radius r), particles are points, and a point
+inside a capsule is pushed out by a spring on its penetration (the penalty method, §2.6.2).
+Point vs capsule (§2.6.3, docs/physics.md): s = clamp(((x − a)·(b − a)) / |b − a|², 0, 1),
+y = a + s·(b − a), distance |x − y| − r; s strictly inside (0, 1) is the cylinder, s = 0 or 1 a
+hemispherical cap, and a = b a sphere.
+
+The contact force is part of the shared force evaluation (so RK4 stages and the implicit solve see
+it). With depth d = r + margin − |x − y| > 0, normal n = (x − y)/|x − y|, particle mass m, and the
+relative velocity u = v − v_surface:
+
+    f_n = m·(k̂·d − 2ζ·√k̂·(u·n)), clamped at 0 (contact pushes, never pulls)
+    f_t = −min(μ·f_n, 2·m·√k̂·|u_t|) · u_t/|u_t|     (Coulomb, regularised for small slip)
+
+k̂ [1/s²] is a stiffness per unit mass, so a contact's frequency √k̂ does not depend on the cloth's
+resolution, ζ the damping ratio of that normal spring, μ the friction coefficient. The surface
+velocity of a capsule is interpolated along its axis from the endpoint velocities.
+"""
+
+import numpy as np
+import taichi as ti
+
+
+
+def closest_points_numpy(x: np.ndarray, a: np.ndarray, b: np.ndarray):
+    """For points x (N,3) and segments a, b (C,3): segment parameter s (N,C), closest points
+    y (N,C,3) and distances |x − y| (N,C). A degenerate segment (a = b) gives s = 0."""
+    axis = b - a
+    length_sq = np.einsum("ck,ck->c", axis, axis)
+    offset = x[:, None, :] - a[None, :, :]
+    safe = np.where(length_sq > 0, length_sq, 1.0)
+    s = np.clip(np.einsum("nck,ck->nc", offset, axis) / safe, 0.0, 1.0)
+    s = np.where(length_sq > 0, s, 0.0)
+    closest = a[None] + s[..., None] * axis[None]
+    return s, closest, np.linalg.norm(x[:, None, :] - closest, axis=-1)
+
+
+def max_capsule_penetration(x: np.ndarray, a: np.ndarray, b: np.ndarray,
+                            radius: np.ndarray) -> float:
+    """Deepest point inside any capsule [m] (0 when none is inside)."""
+    _, _, distance = closest_points_numpy(x, a, b)
+    return float(max(0.0, np.max(radius[None, :] - distance)))
+
+
+@ti.func
+def normal_force_magnitude(mass, depth, normal_speed, stiffness, damping_ratio):
+    """m·(k̂·d − 2ζ·√k̂·(u·n)), clamped at 0: contact pushes, never pulls [N]."""
+    return ti.max(mass * (stiffness * depth - 2 * damping_ratio * ti.sqrt(stiffness) * normal_speed),
+                  0.0)
+
+
+@ti.func
+def friction_viscosity(mass, normal_magnitude, slip_speed, stiffness, friction):
+    """Regularised Coulomb friction as a viscous coefficient c_t [N·s/m], f_t = −c_t·u_t:
+    c_t = min(μ·f_n, 2·m·√k̂·|u_t|) / |u_t| (2·m·√k̂ at zero slip)."""
+    limit = 2 * mass * ti.sqrt(stiffness)
+    return ti.min(friction * normal_magnitude / ti.max(slip_speed, 1e-30), limit)
+
+
+@ti.func
+def penalty_force(mass, depth, normal, relative_velocity, stiffness, damping_ratio, friction):
+    """Normal penalty spring and dashpot plus regularised Coulomb friction (module docstring)."""
+    normal_speed = relative_velocity.dot(normal)
+    normal_magnitude = normal_force_magnitude(mass, depth, normal_speed, stiffness, damping_ratio)
+    slip = relative_velocity - normal_speed * normal
+    viscosity = friction_viscosity(mass, normal_magnitude, slip.norm(), stiffness, friction)
+    return normal_magnitude * normal - viscosity * slip
+
+
+@ti.func
+def penalty_damping_block(mass, depth, normal, relative_velocity, stiffness, damping_ratio,
+                          friction, real: ti.template()):
+    """∂f/∂v of ``penalty_force`` with the friction coefficient frozen at the current slip:
+    −2ζ·m·√k̂·n·nᵀ − c_t·(I − n·nᵀ). Friction then acts implicitly like a damper (an explicit
+    friction of stiffness 2·m·√k̂ would overshoot at large steps); negative semi-definite."""
+    normal_speed = relative_velocity.dot(normal)
+    normal_magnitude = normal_force_magnitude(mass, depth, normal_speed, stiffness, damping_ratio)
+    slip = relative_velocity - normal_speed * normal
+    viscosity = friction_viscosity(mass, normal_magnitude, slip.norm(), stiffness, friction)
+    outer = normal.outer_product(normal)
+    identity = ti.Matrix.identity(real, 3)
+    return -2 * damping_ratio * mass * ti.sqrt(stiffness) * outer - viscosity * (identity - outer)
+
+
+@ti.func
+def closest_on_segment(x, a, b):
+    """Parameter s ∈ [0, 1] of the point of segment a–b closest to x (s = 0 when a = b)."""
+    axis = b - a
+    return ti.min(ti.max((x - a).dot(axis) / ti.max(axis.dot(axis), 1e-30), 0.0), 1.0)

@@ -1,0 +1,57 @@
+"""What a run measures, on the host once per frame (never inside the substep loop): the
+stretch springs' strain, the elastic energy, and the per-frame and per-run records that become
+``stats.json`` (docs/physics.md, "Metrics")."""
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+def spring_energy(model, positions: np.ndarray) -> float:
+    """Elastic energy Σ ½ k (l − L)² [J] (NumPy, per frame)."""
+    ends = model.host_spring_ends
+    length = np.linalg.norm(positions[ends[:, 1]] - positions[ends[:, 0]], axis=1)
+    return float(0.5 * np.sum(model.host_stiffness * (length - model.host_rest_length) ** 2))
+
+
+def stretch_strain(model, positions: np.ndarray) -> np.ndarray:
+    """(l − L) / L of every stretch spring."""
+    ends = model.host_spring_ends[:model.stretch_count]
+    rest = model.host_rest_length[:model.stretch_count]
+    length = np.linalg.norm(positions[ends[:, 1]] - positions[ends[:, 0]], axis=1)
+    return (length - rest) / rest
+
+
+@dataclass
+class FrameMetrics:
+    """One frame's measurements (SI units) as they go into ``stats.json``."""
+
+    frame: int
+    t: float
+    kinetic_energy: float
+    potential_energy: float
+    max_strain: float
+    max_penetration: float
+    center_of_mass: list
+    cg_iterations: float | None = None  # implicit integrator: mean CG iterations per step
+
+    def as_dict(self) -> dict:
+        return {key: value for key, value in self.__dict__.items() if value is not None}
+
+
+@dataclass
+class RunRecord:
+    """What a run measured: per-frame metrics and wall-clock seconds per phase."""
+
+    frames: list = field(default_factory=list)
+    wall_seconds: dict = field(default_factory=lambda: {"compile": 0.0, "simulate": 0.0})
+    cg_iterations: list = field(default_factory=list)  # per implicit step
+    retries: int = 0  # frames rolled back and redone with the step halved
+
+    @property
+    def max_strain(self) -> float:
+        return max((f.max_strain for f in self.frames), default=0.0)
+
+    @property
+    def max_penetration(self) -> float:
+        return max((f.max_penetration for f in self.frames), default=0.0)
