@@ -1,15 +1,20 @@
-"""Command line: ``python -m taichi_cloth COMMAND ...``. Parses arguments and dispatches."""
+"""Command line: ``python -m taichi_cloth COMMAND ...``. Parses arguments, loads the scene,
+and hands it to the command's module: ``output.run`` (simulate, render), ``studies.compare``,
+``studies.bench``; lists what ships."""
 
 import argparse
 import signal
 import sys
 
+from taichi_cloth.config.materials import PRESETS
+from taichi_cloth.config.scene import MESH_FORMATS, load_scene, shipped_scene_names
 from taichi_cloth.errors import InputError, UnstableError
-from taichi_cloth.config.scene import MESH_FORMATS
+from taichi_cloth.flags import choice_list
+from taichi_cloth.runtime import ARCH_NAMES
 
 
 class ArgumentParser(argparse.ArgumentParser):
-    """argparse that reports bad flags as one line with exit code 2 (DESIGN.md)."""
+    """argparse that reports bad flags as one line with exit code 2 (README, "Exit codes")."""
 
     def error(self, message):
         sys.stderr.write(f"{self.prog}: {message}\n")
@@ -19,7 +24,7 @@ class ArgumentParser(argparse.ArgumentParser):
 def add_common_arguments(parser: argparse.ArgumentParser, out_help: str, set_help: str) -> None:
     """--out, --arch, --set and --quiet, shared by the commands that run a scene."""
     parser.add_argument("--out", help=out_help)
-    parser.add_argument("--arch", choices=("cpu", "cuda", "vulkan", "gpu"),
+    parser.add_argument("--arch", choices=ARCH_NAMES,
                         help="Taichi backend (default: the scene's simulation.arch)")
     parser.add_argument("--set", dest="overrides", action="append", default=[],
                         metavar="KEY=VALUE", help=set_help)
@@ -38,13 +43,11 @@ def add_scene_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def mesh_formats(text: str) -> tuple[str, ...]:
-    """--meshes: a comma-separated list of mesh formats."""
-    formats = tuple(dict.fromkeys(name.strip().lower() for name in text.split(",") if name.strip()))
-    unknown = [name for name in formats if name not in MESH_FORMATS]
-    if unknown or not formats:
-        raise argparse.ArgumentTypeError(
-            f"unknown mesh format {unknown[0]!r} in {text!r}" if unknown else "no format given")
-    return formats
+    """--meshes: a comma list of mesh formats."""
+    try:
+        return choice_list(text, "--meshes", MESH_FORMATS, "mesh format")
+    except InputError as error:
+        raise argparse.ArgumentTypeError(str(error).removeprefix(f"--meshes {text}: ")) from None
 
 
 def add_mesh_arguments(parser: argparse.ArgumentParser) -> None:
@@ -117,7 +120,7 @@ def build_parser() -> argparse.ArgumentParser:
                        help="minimum seconds per timed repeat (default 1)")
     bench.add_argument("--repeats", type=int, default=3,
                        help="timed repeats per figure, the median is reported (default 3)")
-    bench.add_argument("--arch", choices=("cpu", "cuda", "vulkan", "gpu"), default="cpu",
+    bench.add_argument("--arch", choices=ARCH_NAMES, default="cpu",
                        help="Taichi backend (default cpu)")
     bench.add_argument("--quiet", action="store_true", help="no progress lines")
     bench.add_argument("--profile", action="store_true",
@@ -125,6 +128,69 @@ def build_parser() -> argparse.ArgumentParser:
                             "profiler's own timing slows the rates, so read them from a run "
                             "without it)")
     return parser
+
+
+def prepare_scene(scene_name: str, overrides: list[str], frames: int | None, arch: str | None):
+    """Load the scene with the common flags applied."""
+    extra = list(overrides or [])
+    if arch is not None:
+        extra.append(f"simulation.arch={arch}")
+    scene = load_scene(scene_name, tuple(extra))
+    if frames is not None and frames < 1:
+        raise InputError(f"--frames {frames}: must be at least 1")
+    return scene, frames if frames is not None else scene.frame_count
+
+
+def check_size(value: int, flag: str) -> None:
+    """--width/--height: the renderer's pixel range."""
+    if not 16 <= value <= 8192:
+        raise InputError(f"{flag} {value}: must be between 16 and 8192 pixels")
+
+
+def simulate(scene_name: str, overrides: list[str], frames: int | None, out: str | None,
+             arch: str | None, quiet: bool, meshes=None, body_meshes: bool = False,
+             resume: bool = False) -> int:
+    """Physics only: run the scene and write stats.json (and meshes when asked)."""
+    from taichi_cloth.output.run import output_dir, run_scene
+    scene, frame_count = prepare_scene(scene_name, overrides, frames, arch)
+    return run_scene(scene, frame_count, output_dir(scene, out), quiet,
+                     meshes=scene.output.meshes if meshes is None else meshes,
+                     body_meshes=body_meshes or scene.output.body_meshes, resume=resume)
+
+
+def render(scene_name: str, overrides: list[str], frames: int | None, out: str | None,
+           arch: str | None, quiet: bool, width: int | None = None, height: int | None = None,
+           video: str | None = None, meshes=None, body_meshes: bool = False,
+           resume: bool = False) -> int:
+    """Simulate and write PNG frames (headless GGUI), and a video and meshes when asked."""
+    from taichi_cloth.output.run import output_dir, run_scene
+    for value, flag in ((width, "--width"), (height, "--height")):
+        if value is not None:
+            check_size(value, flag)
+    scene, frame_count = prepare_scene(scene_name, overrides, frames, arch)
+    size = (width or scene.render.width, height or scene.render.height)
+    return run_scene(scene, frame_count, output_dir(scene, out), quiet, size,
+                     video=scene.output.video if video is None else video,
+                     meshes=scene.output.meshes if meshes is None else meshes,
+                     body_meshes=body_meshes or scene.output.body_meshes, resume=resume)
+
+
+def list_scenes() -> int:
+    for name in shipped_scene_names():
+        scene = load_scene(name)
+        print(f"{name:12s} {scene.scene.description}")
+    return 0
+
+
+def list_materials() -> int:
+    print(f"{'name':10s} {'density':>9s} {'stretch':>9s} {'shear':>7s} {'bend':>9s} "
+          f"{'damping':>8s} {'thick':>6s}")
+    print(f"{'':10s} {'kg/m²':>9s} {'N/m':>9s} {'N/m':>7s} {'N·m':>9s} {'s':>8s} {'mm':>6s}")
+    for material in PRESETS.values():
+        print(f"{material.name:10s} {material.density:9.3f} {material.stretch_stiffness:9.0f} "
+              f"{material.shear_stiffness:7.1f} {material.bend_stiffness:9.2e} "
+              f"{material.damping:8.1e} {material.thickness * 1000:6.2f}  {material.description}")
+    return 0
 
 
 def stop_on_terminate(signum, frame):
@@ -135,14 +201,13 @@ def stop_on_terminate(signum, frame):
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     signal.signal(signal.SIGTERM, stop_on_terminate)
-    from taichi_cloth.output import run as commands
     try:
         if args.command == "simulate":
-            return commands.simulate(args.scene, args.overrides, args.frames, args.out,
+            return simulate(args.scene, args.overrides, args.frames, args.out,
                                      args.arch, args.quiet, args.meshes, args.body_meshes,
                                      args.resume)
         if args.command == "render":
-            return commands.render(args.scene, args.overrides, args.frames, args.out, args.arch,
+            return render(args.scene, args.overrides, args.frames, args.out, args.arch,
                                    args.quiet, args.width, args.height, args.video, args.meshes,
                                    args.body_meshes, args.resume)
         if args.command == "compare":
@@ -155,9 +220,9 @@ def main(argv=None) -> int:
             return bench_command(args.sizes, args.integrators, args.scene, args.json,
                                  args.seconds, args.repeats, args.arch, args.quiet, args.profile)
         if args.command == "scenes":
-            return commands.list_scenes()
+            return list_scenes()
         if args.command == "materials":
-            return commands.list_materials()
+            return list_materials()
     except (InputError, UnstableError) as error:
         sys.stderr.write(f"error: {error}\n")
         return error.exit_code

@@ -1,4 +1,4 @@
-"""Errors that the command line turns into exit codes (DESIGN.md, "Exit codes")."""
+"""Errors that the command line turns into exit codes (README, "Exit codes")."""
 
 
 class InputError(Exception):

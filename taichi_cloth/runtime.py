@@ -8,6 +8,7 @@ import taichi as ti
 from taichi_cloth.errors import InputError
 
 ARCHES = {"cpu": ti.cpu, "cuda": ti.cuda, "vulkan": ti.vulkan, "gpu": ti.gpu}
+ARCH_NAMES = tuple(ARCHES)  # --arch and simulation.arch
 
 
 def taichi_started() -> bool:

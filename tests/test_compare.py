@@ -1,5 +1,5 @@
 """The integrator comparison on a small, soft sheet: one CSV row per integrator × dt, unstable
-steps recorded (not raised), convergence orders as ORACLES.md states them (1 for the Euler
+steps recorded (not raised), convergence orders as docs/physics.md states them (1 for the Euler
 variants and backward Euler, 4 for RK4), the plots, the report, and bad flags (exit 2).
 
 The sheet: 8×8 particles, stretch 50 N/m, shear 5 N/m and Rayleigh damping time β = 2 ms, so

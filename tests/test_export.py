@@ -8,10 +8,12 @@ import meshio
 import numpy as np
 import pytest
 
-from taichi_cloth.output import run as commands
+from taichi_cloth import cli
 from taichi_cloth.cli import main
 from taichi_cloth.body.dancer import Body
-from taichi_cloth.output.files import seam_split, video_writer, write_png
+from taichi_cloth.output.files import write_png
+from taichi_cloth.output.meshes import seam_split
+from taichi_cloth.output.video import video_writer
 from taichi_cloth.cloth.garment import build_garment
 from taichi_cloth.config.scene import load_scene
 from taichi_cloth.render.surfaces import capsule_template
@@ -25,7 +27,7 @@ FORMATS = ("obj", "ply", "vtu", "xdmf")
 def hula_meshes(tmp_path_factory):
     """``simulate hula`` for 3 small frames with every mesh format and the body; its meshes/."""
     out = tmp_path_factory.mktemp("meshes")
-    commands.simulate("hula", [f"cloth.resolution=[{COLUMNS},{ROWS}]"], FRAMES, str(out), None,
+    cli.simulate("hula", [f"cloth.resolution=[{COLUMNS},{ROWS}]"], FRAMES, str(out), None,
                       True, meshes=FORMATS, body_meshes=True)
     return out / "meshes"
 
@@ -156,7 +158,7 @@ def test_stale_frames_of_a_longer_run_are_removed(tmp_path):
     meshes = tmp_path / "meshes"
     meshes.mkdir()
     (meshes / "cloth_00007.ply").write_text("old")
-    commands.simulate("skirt", ["cloth.resolution=[6,3]"], 1, str(tmp_path), None, True,
+    cli.simulate("skirt", ["cloth.resolution=[6,3]"], 1, str(tmp_path), None, True,
                       meshes=("ply",))
     assert sorted(p.name for p in meshes.iterdir()) == ["cloth_00000.ply"]
     assert Path(tmp_path / "stats.json").exists()

@@ -48,7 +48,7 @@ def test_spring_force_is_minus_the_energy_gradient():
 @pytest.mark.parametrize("integrator, error_sign", [("euler", 1), ("symplectic", -1), ("rk4", 0)])
 def test_unpinned_sheet_centre_of_mass_falls_freely(integrator, error_sign):
     """Springs and dashpots are internal: the centre of mass follows y₀ − ½gt², off by exactly
-    ±½·g·h·t for the Euler methods and not at all for RK4 (ORACLES.md, Mechanics)."""
+    ±½·g·h·t for the Euler methods and not at all for RK4 (docs/physics.md, closed forms)."""
     scene = small_sheet("cloth.pin='none'", "effects.drag=false", "simulation.precision='f64'",
                         f"simulation.integrator='{integrator}'", "simulation.dt=0.0002",
                         "cloth.material.stretch_stiffness=50", "cloth.material.shear_stiffness=5")

@@ -1,4 +1,4 @@
-"""Integrators against the closed forms of ORACLES.md, on one undamped or damped spring."""
+"""Integrators against the closed forms of docs/physics.md, on one undamped or damped spring."""
 
 import math
 
@@ -30,7 +30,7 @@ def test_explicit_euler_energy_grows_by_exactly_one_plus_omega_h_squared(oscilla
     ratios = energy_ratios(oscillators[("euler", 0.0)], 100, h)
     per_step = ratios / np.concatenate([[1.0], ratios[:-1]])
     np.testing.assert_allclose(per_step, 1.01, rtol=1e-12)
-    assert ratios[-1] == pytest.approx(2.70481, rel=1e-5)  # ORACLES: 1.01^100
+    assert ratios[-1] == pytest.approx(2.70481, rel=1e-5)  # docs/physics.md: 1.01^100
 
 
 def test_symplectic_euler_conserves_its_modified_energy(oscillators):
@@ -73,7 +73,7 @@ def exact_displacement(t, amplitude, zeta):
     ("implicit", 1, (200, 400, 800)),
 ])
 def test_convergence_order_at_fixed_end_time(oscillators, name, order, steps, zeta):
-    """Global error at T = 2 s falls as h^p (ORACLES.md); with dashpots on too, which catches an
+    """Global error at T = 2 s falls as h^p (docs/physics.md); with dashpots on too, which catches an
     RK4 that damps with the step's starting velocity."""
     end_time = 2.0
     oscillator = oscillators[(name, zeta)]
@@ -117,7 +117,7 @@ def test_rayleigh_damped_cloth_is_limited_by_its_highest_mode():
 
 
 def test_backward_euler_energy_decreases_every_step_even_at_huge_steps(oscillators):
-    """ORACLES.md: backward Euler's energy decreases every step, at any h; here ωh = 0.5 and 100."""
+    """docs/physics.md: backward Euler's energy decreases every step, at any h; here ωh = 0.5 and 100."""
     for y, steps in ((0.5, 50), (100.0, 5)):  # at ωh = 100, 1e-4 per step: 5 steps to 1e-20
         ratios = energy_ratios(oscillators[("implicit", 0.0)], steps, y / OMEGA)
         assert np.all(np.diff(np.concatenate([[1.0], ratios])) < 0)

@@ -5,7 +5,6 @@ these tests skip, except in CI (CI=true), which installs it (scripts/ensure-vulk
 import os
 import subprocess
 import sys
-from dataclasses import replace
 from pathlib import Path
 
 import imageio
@@ -13,7 +12,7 @@ import imageio.v3 as iio
 import numpy as np
 import pytest
 
-from taichi_cloth.output import run as commands
+from taichi_cloth import cli
 from taichi_cloth.body.dancer import Body
 from taichi_cloth.errors import InputError
 from taichi_cloth.cloth.garment import build_garment
@@ -33,7 +32,7 @@ def hula(tmp_path_factory):
     out = tmp_path_factory.mktemp("hula")
     had_imgui = (Path.cwd() / "imgui.ini").exists()
     try:
-        commands.render("hula", SMALL, FRAMES, str(out), None, True, WIDTH, HEIGHT, "mp4")
+        cli.render("hula", SMALL, FRAMES, str(out), None, True, WIDTH, HEIGHT, "mp4")
     except InputError as error:
         if "Vulkan" in str(error) and not os.environ.get("CI"):
             pytest.skip(str(error))
@@ -112,7 +111,7 @@ def test_missing_vulkan_exits_2_naming_the_packages(tmp_path):
 
 def test_render_rejects_a_bad_size_naming_the_flag(tmp_path):
     with pytest.raises(InputError, match="--width 8"):
-        commands.render("skirt", [], 1, str(tmp_path), None, True, width=8)
+        cli.render("skirt", [], 1, str(tmp_path), None, True, width=8)
 
 
 # --- what the renderer draws, without a window ---------------------------------------------

@@ -18,11 +18,11 @@ from typing import Any
 from taichi_cloth.config.materials import PRESETS, Material
 from taichi_cloth.effects import EFFECT_BY_NAME
 from taichi_cloth.errors import InputError
+from taichi_cloth.runtime import ARCH_NAMES
 from taichi_cloth.settings import SourceContext, build_table, setting
 
 SCENES_DIR = Path(__file__).resolve().parents[2] / "scenes"
 INTEGRATOR_NAMES = ("euler", "symplectic", "rk4", "implicit")
-ARCH_NAMES = ("cpu", "cuda", "vulkan", "gpu")
 SPRING_FAMILIES = ("stretch", "shear", "bend")
 MESH_FORMATS = ("obj", "ply", "vtu", "xdmf")
 
@@ -146,7 +146,7 @@ class OutputConfig:
 @dataclass(frozen=True)
 class Scene:
     """A whole validated scene. ``effects`` maps each declared effect name to its settings, in
-    a fixed order; an effect that is absent is not compiled (DESIGN.md, promise 3)."""
+    a fixed order; an effect that is absent is not compiled (README: only the effects a scene declares)."""
 
     path: str
     scene: SceneInfo
@@ -194,7 +194,7 @@ def shipped_scene_names() -> list[str]:
 
 def parse_override(text: str) -> tuple[list[str], Any]:
     """``KEY=VALUE`` → (dotted key parts, value). VALUE is TOML; a bare word that is not valid
-    TOML is a string (DESIGN.md)."""
+    TOML is a string (README, "Commands")."""
     key, sep, raw = text.partition("=")
     key = key.strip()
     if not sep or not key or any(not part for part in key.split(".")):

@@ -1,7 +1,8 @@
-"""What each command-line command does; ``__main__`` only parses arguments and calls these."""
+"""A scene's run with its outputs: frames (PNG, video), meshes, ``stats.json``, and after a stop
+a checkpoint. ``run_scene`` drives ``Simulation.run`` and writes each frame's files as it comes;
+files are written whole or not at all (``output.files.atomic_path``)."""
 
 import contextlib
-import dataclasses
 import json
 import os
 import sys
@@ -14,26 +15,15 @@ import numpy as np
 from taichi_cloth.output.checkpoint import (Checkpoint, load_checkpoint, remove_checkpoint, save_checkpoint,
                          scene_fingerprint)
 from taichi_cloth.errors import InputError, UnstableError
-from taichi_cloth.output.files import (MeshSeries, copy_file, remove_stale_frames, seam_split, video_writer,
-                     read_png, write_json, write_material, write_png)
-from taichi_cloth.config.materials import PRESETS
+from taichi_cloth.output.files import copy_file, read_png, remove_stale_frames, write_json, write_png
+from taichi_cloth.output.meshes import MeshSeries, seam_split, write_material
+from taichi_cloth.output.video import video_writer
 from taichi_cloth.output.progress import Progress
-from taichi_cloth.config.scene import Scene, load_scene, shipped_scene_names
+from taichi_cloth.config.scene import Scene
 
 OUTPUT_ROOT = Path("output")
 FRAME_DIR = "frames"  # PNG frames, inside the output folder
 MESH_DIR = "meshes"
-
-
-def prepare_scene(scene_name: str, overrides: list[str], frames: int | None, arch: str | None):
-    """Load the scene with the common flags applied."""
-    extra = list(overrides or [])
-    if arch is not None:
-        extra.append(f"simulation.arch={arch}")
-    scene = load_scene(scene_name, tuple(extra))
-    if frames is not None and frames < 1:
-        raise InputError(f"--frames {frames}: must be at least 1")
-    return scene, frames if frames is not None else scene.frame_count
 
 
 def output_dir(scene: Scene, out: str | None) -> Path:
@@ -59,12 +49,6 @@ def check_writable(directory: Path, flag: str) -> None:
     except OSError as error:
         raise InputError(f"{flag} {directory}: cannot write in {existing} "
                          f"({error.strerror})") from None
-
-
-def check_size(value: int, flag: str) -> None:
-    """--width/--height: the renderer's pixel range."""
-    if not 16 <= value <= 8192:
-        raise InputError(f"{flag} {value}: must be between 16 and 8192 pixels")
 
 
 def mesh_series(scene: Scene, simulation, directory: Path, formats, body_meshes: bool) -> list:
@@ -214,47 +198,3 @@ def summary(stats: dict, directory: Path) -> str:
             f"{retries}), max strain "
             f"{stats['max_strain']:.4f}, max penetration {stats['max_penetration'] * 1000:.2f} mm; "
             f"{seconds} → {directory}")
-
-
-def simulate(scene_name: str, overrides: list[str], frames: int | None, out: str | None,
-             arch: str | None, quiet: bool, meshes=None, body_meshes: bool = False,
-             resume: bool = False) -> int:
-    """Physics only: run the scene and write stats.json (and meshes when asked)."""
-    scene, frame_count = prepare_scene(scene_name, overrides, frames, arch)
-    return run_scene(scene, frame_count, output_dir(scene, out), quiet,
-                     meshes=scene.output.meshes if meshes is None else meshes,
-                     body_meshes=body_meshes or scene.output.body_meshes, resume=resume)
-
-
-def render(scene_name: str, overrides: list[str], frames: int | None, out: str | None,
-           arch: str | None, quiet: bool, width: int | None = None, height: int | None = None,
-           video: str | None = None, meshes=None, body_meshes: bool = False,
-           resume: bool = False) -> int:
-    """Simulate and write PNG frames (headless GGUI), and a video and meshes when asked."""
-    for value, flag in ((width, "--width"), (height, "--height")):
-        if value is not None:
-            check_size(value, flag)
-    scene, frame_count = prepare_scene(scene_name, overrides, frames, arch)
-    size = (width or scene.render.width, height or scene.render.height)
-    return run_scene(scene, frame_count, output_dir(scene, out), quiet, size,
-                     video=scene.output.video if video is None else video,
-                     meshes=scene.output.meshes if meshes is None else meshes,
-                     body_meshes=body_meshes or scene.output.body_meshes, resume=resume)
-
-
-def list_scenes() -> int:
-    for name in shipped_scene_names():
-        scene = load_scene(name)
-        print(f"{name:12s} {scene.scene.description}")
-    return 0
-
-
-def list_materials() -> int:
-    print(f"{'name':10s} {'density':>9s} {'stretch':>9s} {'shear':>7s} {'bend':>9s} "
-          f"{'damping':>8s} {'thick':>6s}")
-    print(f"{'':10s} {'kg/m²':>9s} {'N/m':>9s} {'N/m':>7s} {'N·m':>9s} {'s':>8s} {'mm':>6s}")
-    for material in PRESETS.values():
-        print(f"{material.name:10s} {material.density:9.3f} {material.stretch_stiffness:9.0f} "
-              f"{material.shear_stiffness:7.1f} {material.bend_stiffness:9.2e} "
-              f"{material.damping:8.1e} {material.thickness * 1000:6.2f}  {material.description}")
-    return 0

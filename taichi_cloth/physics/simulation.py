@@ -32,7 +32,7 @@ from taichi_cloth.errors import UnstableError
 from taichi_cloth.physics.control import Control
 from taichi_cloth.physics.forces import Forces
 from taichi_cloth.physics.integrators import INTEGRATORS, make_integrator
-from taichi_cloth.physics.integrators.implicit import SolverBreakdown
+from taichi_cloth.physics.integrators.conjugate_gradient import SolverBreakdown
 from taichi_cloth.physics.metrics import FrameMetrics, RunRecord, spring_energy, stretch_strain
 from taichi_cloth.physics.model import Model
 from taichi_cloth.physics.packed_grid import packed_grid_for

@@ -3,7 +3,7 @@
 The highest angular frequency ω_max of the linearised cloth at rest is the square root of the
 largest eigenvalue of M⁻¹K over the free particles, K the spring stiffness matrix (a spring at rest
 along unit n contributes k·n·nᵀ blocks). Power iteration on M⁻¹K estimates it; Gershgorin
-(ω² ≤ max_i 2·Σ_{s∋i} k_s / m_i, ORACLES.md) bounds it from above. Penalty contact adds its
+(ω² ≤ max_i 2·Σ_{s∋i} k_s / m_i, docs/physics.md) bounds it from above. Penalty contact adds its
 stiffness per unit mass k̂ to ω², and its own modes (the normal spring with its damping ratio, and
 the friction damper) bound the step too. The step is then ``safety`` × the integrator's stability bound
 for all modes up to ω_max with the springs' Rayleigh damping (``integrators.stability``).

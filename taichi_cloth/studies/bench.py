@@ -430,10 +430,6 @@ def run_bench(sizes, integrators, scene_name, seconds: float, repeats: int, arch
     return rows, scaling_exponent([r for r in rows if r["benchmark"] == "reference"])
 
 
-def parse_list(text: str, kind=str) -> tuple:
-    return tuple(kind(item.strip()) for item in text.split(",") if item.strip())
-
-
 def rows_document(rows: list[dict], fits: dict) -> list[dict]:
     """The JSON file: the rows, then one row per scaling fit."""
     return rows + [{"benchmark": "scaling", "integrator": name, **fit}
@@ -447,19 +443,14 @@ def bench_command(sizes: str | None, integrators: str | None, scene_name: str | 
     from pathlib import Path
 
     from taichi_cloth.errors import InputError
+    from taichi_cloth.flags import choice_list, number_list
     from taichi_cloth.output.files import write_json
-    try:
-        size_list = parse_list(sizes, int) if sizes is not None else None
-    except ValueError:
-        raise InputError(f"--sizes {sizes}: expected a comma list of integers") from None
-    if size_list is not None and (not size_list or min(size_list) < 5):
-        raise InputError(f"--sizes {sizes}: every size must be at least 5 (a 5 × 5 sheet)")
-    integrator_list = parse_list(integrators) if integrators is not None else None
-    unknown = [name for name in integrator_list or () if name not in INTEGRATORS]
-    if unknown or integrator_list == ():
-        raise InputError(f"--integrators {integrators}: valid: {', '.join(INTEGRATORS)}")
-    if seconds <= 0 or repeats < 1:
-        raise InputError("--seconds must be > 0 and --repeats at least 1")
+    size_list = number_list(sizes, "--sizes", int, 4, "particles per side") \
+        if sizes is not None else None
+    integrator_list = choice_list(integrators, "--integrators", INTEGRATORS, "integrator") \
+        if integrators is not None else None
+    if not (0 < seconds < 3600) or repeats < 1:  # also refuses nan
+        raise InputError("--seconds must be between 0 and 3600 and --repeats at least 1")
     if scene_name is not None:
         load_scene(scene_name)  # a bad name fails before any measuring
     say = None if quiet else (lambda message: print(f"bench: {message}", flush=True))

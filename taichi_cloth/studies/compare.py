@@ -1,4 +1,4 @@
-"""The integrator comparison (DESIGN.md promise 1): what each integrator's accuracy costs in time.
+"""The integrator comparison (README: what accuracy costs in time): what each integrator's accuracy costs in time.
 
 ``compare SCENE`` runs the scene once per integrator × time step and measures, per run:
 
@@ -42,6 +42,7 @@ import taichi as ti
 
 from taichi_cloth.output.run import OUTPUT_ROOT, check_writable
 from taichi_cloth.errors import InputError, UnstableError
+from taichi_cloth.flags import choice_list, number_list
 from taichi_cloth.output.files import atomic_path, write_json
 from taichi_cloth.physics.integrators import INTEGRATORS
 from taichi_cloth.output.progress import Progress
@@ -58,7 +59,7 @@ DEFAULT_DURATION_CAP = 1.0  # s: default --duration is the scene's, at most this
 SWEEP_POINTS_MAX = 8  # default sweep: at most this many steps, spaced by a factor >= 2
 ORDER_FIT_POINTS = 3  # the order is fitted on this many smallest steps
 ROUNDOFF_FLOOR = 100  # errors below this × machine epsilon × cloth size are round-off
-EXPECTED_ORDERS = {"euler": 1, "symplectic": 1, "rk4": 4, "implicit": 1}  # ORACLES.md
+EXPECTED_ORDERS = {"euler": 1, "symplectic": 1, "rk4": 4, "implicit": 1}  # docs/physics.md
 CSV_COLUMNS = ("integrator", "dt", "dt_requested", "substeps_per_frame", "stable",
                "blowup_time", "wall_seconds_per_sim_second", "compile_seconds", "error_rms",
                "error_max", "energy_drift", "max_strain", "max_penetration")
@@ -68,29 +69,12 @@ def integrator_names(text: str | None) -> tuple[str, ...]:
     """--integrators: a comma list of integrator names (default: all four)."""
     if text is None:
         return tuple(INTEGRATORS)
-    names = tuple(dict.fromkeys(name.strip() for name in text.split(",") if name.strip()))
-    unknown = [name for name in names if name not in INTEGRATORS]
-    if unknown or not names:
-        problem = f"unknown integrator {unknown[0]!r}" if unknown else "no integrator given"
-        raise InputError(f"--integrators {text}: {problem} (choose from "
-                         f"{', '.join(INTEGRATORS)})")
-    return names
+    return choice_list(text, "--integrators", INTEGRATORS, "integrator")
 
 
 def seconds_list(text: str | None, flag: str) -> tuple[float, ...]:
     """A comma list of positive, finite seconds for ``flag`` (--dts, --duration, ...)."""
-    if text is None:
-        return ()
-    values = []
-    for item in (part.strip() for part in text.split(",")):
-        try:
-            value = float(item)
-        except ValueError:
-            raise InputError(f"{flag} {text}: {item!r} is not a number of seconds") from None
-        if not (math.isfinite(value) and value > 0):
-            raise InputError(f"{flag} {text}: {item} must be a positive number of seconds")
-        values.append(value)
-    return tuple(values)
+    return () if text is None else number_list(text, flag)
 
 
 def seconds_value(text: str | None, flag: str) -> float | None:
@@ -313,7 +297,7 @@ def unique_steps(dts, frame_time: float) -> list[TimeStep]:
 
 def convergence_orders(rows: list[dict], names, floor: float) -> dict:
     """Per integrator: the order fitted on its stable rows' RMS errors (``fitted_order``), the
-    order ORACLES.md expects, and the steps [s] the fit used."""
+    order docs/physics.md expects, and the steps [s] the fit used."""
     orders = {}
     for name in names:
         stable = [row for row in rows if row["integrator"] == name and row["stable"]]

@@ -1,6 +1,6 @@
 """The comparison's ``report.md``: the setting (reference, machine), a plain reading (the
 cheapest integrator for each accuracy, where each one blew up, the fitted orders against
-ORACLES.md), the results table and the plots; and the command's one-line summary."""
+docs/physics.md), the results table and the plots; and the command's one-line summary."""
 
 from pathlib import Path
 
@@ -73,7 +73,7 @@ def stability_sentence(summary: dict, name: str) -> str:
 
 
 def order_table(summary: dict) -> list[str]:
-    lines = ["| integrator | fitted order | expected (ORACLES.md) | fitted over dt |",
+    lines = ["| integrator | fitted order | expected (docs/physics.md) | fitted over dt |",
              "|---|---|---|---|"]
     for name in summary["integrators"]:
         order = summary["orders"][name]
@@ -116,7 +116,7 @@ def report_text(summary: dict) -> str:
         f"{machine['system']}.",
         f"- **Cloth**: highest angular frequency ω_max = {number(stability['omega_max'], 4)} "
         f"rad/s (contact included), Rayleigh damping time β = {stability['damping_time']:.3g} s "
-        f"(explicit Euler is stable only for dt ≤ β, ORACLES.md).", "",
+        f"(explicit Euler is stable only for dt ≤ β, docs/physics.md).", "",
         "## Reading", "",
         "Which integrator is cheapest for a given accuracy (the cheapest swept run whose RMS "
         "error is at most the target):", "",

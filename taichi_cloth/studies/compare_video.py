@@ -18,7 +18,7 @@ from matplotlib.figure import Figure
 
 from taichi_cloth.studies.compare_plots import INTEGRATOR_TITLES, milliseconds, save
 from taichi_cloth.errors import InputError
-from taichi_cloth.output.files import video_writer
+from taichi_cloth.output.video import video_writer
 from taichi_cloth.output.progress import Progress
 
 TILE_WIDTH = 480  # pixels per integrator in the video

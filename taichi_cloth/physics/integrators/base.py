@@ -22,10 +22,9 @@ import taichi as ti
 
 from taichi_cloth.physics.forces import Forces
 
-# Measured with ``bench`` (symplectic, reference sheet): one thread 8 ns per particle-substep at
-# every size, two threads 9.7 ns at 128² (each parallel loop costs ~40 µs of thread hand-off on
-# this VM), 6.3 ns at 256², 5.2 ns at 512². Below this count one thread wins; an integrator with
-# more work per particle sets its own ``serial_particle_limit``.
+# Below this many particles one thread beats two (the measurement behind it is in
+# docs/performance.md, "Launch sizes"); an integrator with more work per particle sets its own
+# ``serial_particle_limit``.
 SERIAL_PARTICLE_LIMIT = 32768
 
 

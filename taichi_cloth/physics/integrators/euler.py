@@ -73,7 +73,7 @@ class EulerStep(Integrator):
 
     uses_new_velocity = False
     packs_springs = True
-    substep_batch = 8  # a launch costs ~20–45 µs from Python; the 8 copies compile in ~9 s
+    substep_batch = 8  # fewer Python launches against longer compiles (docs/performance.md)
 
     def __init__(self, forces, control, post_step=None):
         super().__init__(forces, control, post_step)

@@ -10,7 +10,7 @@ With a(x, v, t) = M⁻¹ F(x, v, t) and step h:
 
 Every stage evaluates *all* forces, dampers included, at the stage's own positions and velocities.
 The seed's listing evaluates the damping −c·v(t) with the step's starting velocity in every stage,
-which drops the method to first order once damping is on; ORACLES.md's order test catches that.
+which drops the method to first order once damping is on; the order test with damping (docs/physics.md) catches that.
 
 Each stage is ``Forces.prepare`` and one loop over the particles: it gathers forces at the
 previous stage state, adds the stage's weighted slope to running sums, and writes the next stage
@@ -28,8 +28,7 @@ from taichi_cloth.physics.integrators.base import Integrator
 class RungeKutta4(Integrator):
     name = "rk4"
     substep_batch = 1  # four stages per substep already; unrolling only slows compiles
-    # four CSR force passes per substep (~100 ns per particle-substep): two threads pay off
-    # early (bench, 64²: 6.6e6 particle-substeps/s parallel, 5.3e6 serial)
+    # four CSR force passes per substep: two threads pay off early (docs/performance.md)
     serial_particle_limit = 2048
 
     def __init__(self, forces, control, post_step=None):

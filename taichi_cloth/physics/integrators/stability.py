@@ -1,4 +1,4 @@
-"""Stability of each integrator on the damped oscillator ẍ = −ω²x − 2ζω·ẋ (ORACLES.md).
+"""Stability of each integrator on the damped oscillator ẍ = −ω²x − 2ζω·ẋ (docs/physics.md, "Closed forms").
 
 One step of a linear method maps (x, v) to G(ωh, ζ)·(x, v); it is stable when the spectral radius
 of G is at most 1. ``largest_stable_step`` finds the largest such h for every mode of a cloth

@@ -1,0 +1,164 @@
+"""Cloth and body meshes per frame: OBJ with UVs and a material, PLY and VTU through meshio, and
+one XDMF time series per object (ParaView, Blender's importers)."""
+
+import io
+import re
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import meshio
+import numpy as np
+
+from taichi_cloth.output.files import atomic_path
+
+
+def seam_split(garment):
+    """The garment's vertices for a UV-mapped file: (source particle (N',), uvs (N', 2),
+    triangles (T, 3)). A skirt's column 0 is duplicated once more at u = 1 (one vertex per row,
+    appended) and the seam triangles use the copies, so no triangle's UVs wrap from 1 back to 0."""
+    count = len(garment.positions)
+    if not garment.periodic:
+        return np.arange(count), garment.uvs, garment.triangles
+    columns = garment.columns
+    first_column = np.arange(garment.rows) * columns
+    u_period = columns * (garment.uvs[1, 0] - garment.uvs[0, 0])
+    column = garment.triangles % columns
+    wraps = (column == columns - 1).any(axis=1)[:, None] & (column == 0)
+    triangles = garment.triangles.copy()
+    triangles[wraps] = count + triangles[wraps] // columns
+    uvs = np.concatenate([garment.uvs, garment.uvs[first_column] + [u_period, 0.0]])
+    return np.concatenate([np.arange(count), first_column]), uvs, triangles
+
+
+def write_obj(target: Path, points: np.ndarray, triangles: np.ndarray, uvs=None,
+              material: str = "") -> None:
+    """A Wavefront OBJ, atomically: v lines, vt lines when ``uvs`` (V, 2) are given (faces then
+    read ``f v/vt``: meshio's own writer leaves faces without them, so UVs are lost on import),
+    and ``mtllib <material>.mtl`` + ``usemtl <material>`` when ``material`` is named."""
+    text = io.StringIO()
+    text.write("# taichi_cloth\n")
+    if material:
+        text.write(f"mtllib {material}.mtl\nusemtl {material}\n")
+    np.savetxt(text, points, fmt="v %.6f %.6f %.6f")
+    faces = triangles + 1
+    if uvs is not None:
+        np.savetxt(text, uvs, fmt="vt %.6f %.6f")
+        faces = np.repeat(faces, 2, axis=1)
+        np.savetxt(text, faces, fmt="f %d/%d %d/%d %d/%d")
+    else:
+        np.savetxt(text, faces, fmt="f %d %d %d")
+    with atomic_path(target) as temporary:
+        temporary.write_text(text.getvalue(), encoding="utf-8")
+
+
+def write_material(target: Path, name: str, color, texture: str = "") -> None:
+    """An OBJ material library with one material: diffuse ``color`` or the image ``texture``
+    (a file name beside it)."""
+    text = f"newmtl {name}\nKa 0 0 0\nKs 0 0 0\n"
+    text += "Kd 1 1 1\nmap_Kd " + texture + "\n" if texture else \
+        "Kd {:.4f} {:.4f} {:.4f}\n".format(*color)
+    with atomic_path(target) as temporary:
+        temporary.write_text(text, encoding="utf-8")
+
+
+PLY_TIMESTAMP = re.compile(rb"^(comment Created by meshio v[^,\n]*), [^\n]*\n", re.MULTILINE)
+
+
+def write_meshio(target: Path, points: np.ndarray, triangles: np.ndarray, file_format: str):
+    """A triangle mesh through meshio (``ply``: binary; ``vtu``: compressed XML), atomically.
+    meshio stamps a PLY header with the current time; the stamp is dropped so that identical
+    runs write identical files."""
+    with atomic_path(target) as temporary:
+        meshio.write(temporary, meshio.Mesh(points, [("triangle", triangles)]),
+                     file_format=file_format)
+        if file_format == "ply":
+            temporary.write_bytes(PLY_TIMESTAMP.sub(rb"\1\n", temporary.read_bytes(), count=1))
+
+
+XINCLUDE_NAMESPACE = "http://www.w3.org/2001/XInclude"
+XINCLUDE = f"{{{XINCLUDE_NAMESPACE}}}include"
+
+
+def data_item(array: np.ndarray, number_type: str, fmt: str) -> ET.Element:
+    """An XDMF DataItem holding ``array`` inline as XML text."""
+    item = ET.Element("DataItem", Dimensions=" ".join(map(str, array.shape)),
+                      NumberType=number_type, Precision="4" if number_type == "Int" else "8",
+                      Format="XML")
+    text = io.StringIO()
+    np.savetxt(text, array, fmt=fmt)
+    item.text = "\n" + text.getvalue()
+    return item
+
+
+class XdmfSeries:
+    """One moving triangle mesh as a single XDMF 3 file for ParaView: a temporal collection with
+    one uniform grid per frame, each with its time [s] and its own geometry; the first holds the
+    topology and the others include it (XInclude). All inline XML, so no HDF5 is needed.
+    (meshio's ``TimeSeriesWriter`` keeps one geometry for all steps, which cannot show cloth
+    moving.)"""
+
+    def __init__(self, target: Path, triangles: np.ndarray):
+        self.target = Path(target)
+        self.triangles = np.asarray(triangles)
+        self.root = ET.Element("Xdmf", Version="3.0")
+        self.collection = ET.SubElement(ET.SubElement(self.root, "Domain"), "Grid",
+                                        Name=self.target.stem, GridType="Collection",
+                                        CollectionType="Temporal")
+        self.first = ""
+
+    def append(self, frame: int, t: float, points: np.ndarray) -> None:
+        name = f"frame_{frame:05d}"
+        grid = ET.SubElement(self.collection, "Grid", Name=name, GridType="Uniform")
+        if self.first:
+            ET.SubElement(grid, XINCLUDE,
+                          xpointer=f"xpointer(//Grid[@Name='{self.first}']/Topology)")
+        else:
+            self.first = name
+            topology = ET.SubElement(grid, "Topology", TopologyType="Triangle",
+                                     NumberOfElements=str(len(self.triangles)))
+            topology.append(data_item(self.triangles, "Int", "%d %d %d"))
+        geometry = ET.SubElement(grid, "Geometry", GeometryType="XYZ")
+        geometry.append(data_item(np.asarray(points), "Float", "%.6f %.6f %.6f"))
+        ET.SubElement(grid, "Time", Value=repr(float(t)))
+
+    def write(self) -> None:
+        ET.register_namespace("xi", XINCLUDE_NAMESPACE)
+        tree = ET.ElementTree(self.root)
+        ET.indent(tree, space=" ")
+        with atomic_path(self.target) as temporary:
+            tree.write(temporary, encoding="utf-8", xml_declaration=True)
+
+
+class MeshSeries:
+    """One object's meshes, frame after frame, in each of ``formats`` under ``directory``:
+    ``<name>_00000.obj|ply|vtu`` per frame and ``<name>.xdmf`` for the run (written by
+    ``finish``). ``uv_layout`` = (source (V',), uvs (V', 2), triangles) from ``seam_split``
+    gives the OBJ files texture coordinates and the material ``<name>.mtl``."""
+
+    def __init__(self, directory: Path, name: str, formats, triangles: np.ndarray,
+                 uv_layout=None, material: bool = False):
+        self.directory, self.name, self.formats = Path(directory), name, tuple(formats)
+        self.triangles = np.asarray(triangles)
+        self.uv_layout = uv_layout
+        self.material = name if material else ""
+        self.series = XdmfSeries(self.directory / f"{name}.xdmf", self.triangles) \
+            if "xdmf" in self.formats else None
+
+    def append(self, frame: int, t: float, points: np.ndarray) -> None:
+        """The meshes of ``frame`` at simulated time ``t`` [s], vertex positions ``points`` [m]."""
+        stem = self.directory / f"{self.name}_{frame:05d}"
+        for file_format in self.formats:
+            if file_format == "obj" and self.uv_layout is not None:
+                source, uvs, triangles = self.uv_layout
+                write_obj(stem.with_suffix(".obj"), points[source], triangles, uvs, self.material)
+            elif file_format == "obj":
+                write_obj(stem.with_suffix(".obj"), points, self.triangles)
+            elif file_format in ("ply", "vtu"):
+                write_meshio(stem.with_suffix(f".{file_format}"), points, self.triangles,
+                             file_format)
+        if self.series is not None:
+            self.series.append(frame, t, points)
+
+    def finish(self) -> None:
+        if self.series is not None:
+            self.series.write()
