@@ -1,4 +1,9 @@
-"""taichi_cloth: a Taichi mass-spring cloth simulator for garments on moving bodies."""
+"""taichi_cloth: a Taichi mass-spring cloth simulator for garments on moving bodies.
+
+Pipeline (docs/architecture.md): ``config`` (scene file → Scene) → ``cloth`` (garment) and
+``body`` (dancer) → ``effects`` and ``physics`` (model, control, forces, integrators, simulation)
+→ ``render`` and ``output`` (frames, meshes, video, stats) ← ``studies`` (compare, bench) ←
+``cli``."""
 
 import os
 

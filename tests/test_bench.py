@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from taichi_cloth.cli import main
-from taichi_cloth.studies.bench import NumpyCloth, reference_cloth, reference_model
+from taichi_cloth.studies.bench import reference_cloth, reference_model
+from taichi_cloth.studies.numpy_cloth import NumpyCloth
 from taichi_cloth.effects.gravity import Gravity, GravitySettings
 from taichi_cloth.physics.packed_grid import PACKED_PARTICLE_MINIMUM
 from taichi_cloth.cloth.garment import build_garment

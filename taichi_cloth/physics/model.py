@@ -19,6 +19,7 @@ import numpy as np
 import taichi as ti
 
 from taichi_cloth.cloth.garment import Garment
+from taichi_cloth.cloth.topology import gather_lists, triangle_gather_lists
 from taichi_cloth.physics.packed_grid import grid_stencil
 
 FAMILY_ORDER = ("stretch", "shear", "bend")
@@ -27,29 +28,6 @@ FAMILY_ORDER = ("stretch", "shear", "bend")
 def real_type(precision: str):
     """Taichi float type for the scene's ``simulation.precision``."""
     return ti.f64 if precision == "f64" else ti.f32
-
-
-def gather_lists(pairs: np.ndarray, particle_count: int):
-    """CSR lists of what each particle touches: (start (N+1,), item (K,), other (K,)).
-
-    For springs: item = spring index, other = the particle at its other end. Entries of one
-    particle keep the order of ``pairs`` (a stable sort), so sums over them are reproducible.
-    """
-    owner = np.concatenate([pairs[:, 0], pairs[:, 1]])
-    item = np.concatenate([np.arange(len(pairs))] * 2)
-    other = np.concatenate([pairs[:, 1], pairs[:, 0]])
-    order = np.argsort(owner, kind="stable")
-    start = np.searchsorted(owner[order], np.arange(particle_count + 1)).astype(np.int32)
-    return start, item[order].astype(np.int32), other[order].astype(np.int32)
-
-
-def triangle_gather_lists(triangles: np.ndarray, particle_count: int):
-    """CSR lists of the triangles around each particle: (start (N+1,), triangle (K,))."""
-    owner = triangles.ravel()
-    triangle = np.repeat(np.arange(len(triangles)), 3)
-    order = np.argsort(owner, kind="stable")
-    start = np.searchsorted(owner[order], np.arange(particle_count + 1)).astype(np.int32)
-    return start, triangle[order].astype(np.int32)
 
 
 @ti.data_oriented

@@ -9,8 +9,8 @@ constants and the particle mass do not depend on n (``materials.py``). The sheet
 
 Every figure is a rate over timed repeats of at least ``--seconds`` each, after a warm-up that
 compiles the kernels (compile time excluded); the table shows the median repeat. ``NumpyCloth``
-runs the same symplectic Euler step in NumPy as the baseline; the tests use it as the oracle of
-the force kernel.
+(``studies/numpy_cloth.py``) runs the same symplectic Euler step in NumPy as the baseline; the
+tests use it as the oracle of the force kernel. The scene parts are in ``studies/bench_scene.py``.
 
 Scene parts (``--scene``, default ``hula``): the cost of each effect, from the scene with and
 without it (an effect the scene lacks is added with its defaults), the spring and contact passes
@@ -18,13 +18,11 @@ on their own, and the whole scene's simulated seconds per wall second (metrics a
 included, compilation not).
 """
 
-import statistics
 import time
 
 import numpy as np
 import taichi as ti
 
-from taichi_cloth.effects import EFFECTS
 from taichi_cloth.effects.gravity import Gravity, GravitySettings
 from taichi_cloth.physics.forces import Forces
 from taichi_cloth.cloth.garment import build_garment
@@ -35,6 +33,9 @@ from taichi_cloth.runtime import start_taichi
 from taichi_cloth.config.scene import ClothConfig, load_scene
 from taichi_cloth.physics.control import Control
 from taichi_cloth.physics.packed_grid import packed_grid_for
+from taichi_cloth.studies.bench_scene import bench_effects, bench_passes, bench_scene_run
+from taichi_cloth.studies.numpy_cloth import NumpyCloth
+from taichi_cloth.studies.timing import substep_row, timed_rate
 
 REFERENCE_SPACING_M = 0.01
 REFERENCE_DT_S = 1.0 / 1920.0
@@ -57,71 +58,6 @@ def reference_cloth(size: int) -> ClothConfig:
 def reference_model(size: int) -> Model:
     """The reference sheet's model: float32, no dashpots."""
     return Model(build_garment(reference_cloth(size), REFERENCE_MATERIAL), "f32", None)
-
-
-class NumpyCloth:
-    """The reference step in NumPy: spring and dashpot forces per spring, summed per particle
-    with ``bincount`` (f_i = Σ_s k_s (l − L)/l · d + c_s ((v_j − v_i)·d)/l² · d, d = x_j − x_i,
-    the formula of ``forces.py``), gravity m·g, then symplectic Euler v' = v + h·F/m,
-    x' = x + h·v'. Pinned particles keep their position, at rest."""
-
-    def __init__(self, model: Model, gravity: float):
-        self.model = model
-        self.first, self.second = model.host_spring_ends.T
-        self.rest_length = model.host_rest_length.astype(model.numpy_real)
-        self.stiffness = model.host_stiffness.astype(model.numpy_real)
-        self.damping = model.spring_damping.to_numpy() if model.has_dashpots else None
-        self.mass = model.particle_mass.to_numpy()
-        self.inv_mass = model.particle_inv_mass.to_numpy()
-        self.weight = np.zeros((model.particle_count, 3), model.numpy_real)
-        self.weight[:, 1] = -gravity * self.mass
-
-    def forces(self, x: np.ndarray, v: np.ndarray) -> np.ndarray:
-        """Total force on every particle [N], shape (N, 3)."""
-        d = x[self.second] - x[self.first]
-        length = np.sqrt(np.einsum("sk,sk->s", d, d))
-        coefficient = self.stiffness * (length - self.rest_length) / length
-        if self.damping is not None:
-            relative = v[self.second] - v[self.first]
-            coefficient += self.damping * np.einsum("sk,sk->s", relative, d) / length ** 2
-        spring = coefficient[:, None] * d
-        total = self.weight.copy()
-        count = self.model.particle_count
-        for c in range(3):
-            total[:, c] += (np.bincount(self.first, spring[:, c], count)
-                            - np.bincount(self.second, spring[:, c], count))
-        return total
-
-    def step(self, x: np.ndarray, v: np.ndarray, dt: float):
-        """One symplectic Euler substep; returns the new (x, v)."""
-        h = self.model.numpy_real(dt)
-        v_new = v + h * self.inv_mass[:, None] * self.forces(x, v)
-        v_new[self.inv_mass == 0] = 0.0
-        return x + h * v_new, v_new
-
-
-def timed_rate(run_batch, units_per_batch: int, seconds: float, repeats: int) -> list[float]:
-    """Rates (units per second) of ``repeats`` timed repeats, each running batches for at
-    least ``seconds``; ``run_batch`` must finish its work (sync) before returning."""
-    rates = []
-    for _ in range(repeats):
-        done, started = 0, time.perf_counter()
-        while True:
-            run_batch()
-            done += units_per_batch
-            elapsed = time.perf_counter() - started
-            if elapsed >= seconds:
-                break
-        rates.append(done / elapsed)
-    return rates
-
-
-def substep_row(kind: str, integrator: str, size, particles: int, rates: list[float],
-                **extra) -> dict:
-    rate = statistics.median(rates)
-    return {"benchmark": kind, "integrator": integrator, "size": size, "particles": particles,
-            "substeps_per_second": rate, "particle_substeps_per_second": rate * particles,
-            "repeats": [round(r, 3) for r in rates], **extra}
 
 
 def bench_reference(size: int, integrator_name: str, seconds: float, repeats: int,
@@ -187,148 +123,6 @@ def scaling_exponent(rows: list[dict]) -> dict:
                           round(1e9 / largest["particle_substeps_per_second"], 3),
                       "sizes": [r["size"] for r in own]}
     return fits
-
-
-@ti.data_oriented
-class PassTimer:
-    """Kernels that run one pass of a simulation ``count`` times: the spring pass (grid
-    cloth: pack + SIMD stencil; otherwise the CSR gather) and the contact pass (pose the
-    capsules, then every particle's contact force). Loops are serial when the integrator's
-    are, like the substep they come from."""
-
-    def __init__(self, simulation):
-        self.simulation = simulation
-        self.forces = simulation.forces
-        self.model = simulation.model
-        self.serial = simulation.integrator.serial
-        self.out = ti.Vector.field(3, self.model.real, self.model.particle_count)
-        contacts = [e for e in simulation.effects if e.name == "collision"]
-        self.contact = contacts[0] if contacts else None
-        self.has_contact = self.contact is not None
-
-    @ti.func
-    def _springs(self, state):
-        if ti.static(self.forces.has_packed):
-            self.forces.packed.spring_pass(state.x, state.v)
-        else:
-            for i_p in range(self.model.particle_count):
-                self.out[i_p] = self.forces.spring_force(state.x, state.v, i_p)
-
-    @ti.func
-    def _contact(self, state, t):
-        if ti.static(self.has_contact):
-            self.contact.prepare(t)
-            for i_p in range(self.model.particle_count):
-                self.out[i_p] = self.contact.force(self.model, state.x, state.v, i_p,
-                                                   ti.cast(t, self.model.real))
-
-    @ti.kernel
-    def _run(self, state: ti.template(), t: ti.f64, count: ti.i32, which: ti.template()):
-        ti.loop_config(serialize=ti.static(self.serial))
-        for _ in range(count):
-            if ti.static(which == "springs"):
-                self._springs(state)
-            else:
-                self._contact(state, t)
-
-    def seconds_per_pass(self, which: str, seconds: float, repeats: int) -> float:
-        state = self.simulation.state_in
-        t = 0.5 / self.simulation.scene.scene.fps
-        count = 64 if self.serial else 1
-
-        def run_batch():
-            self._run(state, t, count, which)
-            ti.sync()
-
-        run_batch()
-        return 1.0 / statistics.median(timed_rate(run_batch, count, seconds, repeats))
-
-
-def scene_simulation(scene_name: str, overrides: tuple = ()):
-    """A Simulation of the scene (with its body, if any) after ``overrides``."""
-    from taichi_cloth.physics.simulation import Simulation
-    return Simulation.from_scene(scene_name, overrides)
-
-
-def frame_rate(simulation, seconds: float, repeats: int) -> list[float]:
-    """Substeps per second through ``advance_frame`` (body posing included), warm-up first."""
-    from taichi_cloth.physics.metrics import RunRecord
-    record = RunRecord()
-    frame = [0]
-
-    def run_batch():
-        simulation.advance_frame(frame[0], record)
-        frame[0] += 1
-
-    run_batch()
-    run_batch()
-    return timed_rate(run_batch, simulation.time_step.substeps_per_frame, seconds, repeats)
-
-
-def bench_effects(scene_name: str, seconds: float, repeats: int) -> list[dict]:
-    """The cost of each effect: the scene with and without it (added with its defaults when the
-    scene lacks it), in microseconds per substep and nanoseconds per particle-substep."""
-    base = scene_simulation(scene_name)
-    base_rates = frame_rate(base, seconds, repeats)
-    base_rate = statistics.median(base_rates)
-    particles = base.model.particle_count
-    size = f"{base.garment.columns}x{base.garment.rows}"
-    integrator = base.scene.simulation.integrator
-    rows = [substep_row("scene", integrator, size, particles, base_rates,
-                        scene=scene_name, effects=base.effect_names)]
-    for name in (effect.name for effect in EFFECTS):
-        declared = name in base.scene.effects
-        other = scene_simulation(scene_name,
-                                 (f"effects.{name}={'false' if declared else 'true'}",))
-        other_rates = frame_rate(other, seconds, repeats)
-        with_rate, without_rate = (base_rate, statistics.median(other_rates)) if declared \
-            else (statistics.median(other_rates), base_rate)
-        cost = 1.0 / with_rate - 1.0 / without_rate
-        rows.append(substep_row("effect", integrator, size, particles, other_rates,
-                                scene=scene_name, effect=name, declared_in_scene=declared,
-                                substeps_per_second_with=with_rate,
-                                substeps_per_second_without=without_rate,
-                                cost_us_per_substep=round(1e6 * cost, 3),
-                                cost_ns_per_particle_substep=round(1e9 * cost / particles, 3)))
-    return rows
-
-
-def bench_passes(scene_name: str, seconds: float, repeats: int) -> dict:
-    """The spring pass and the contact pass of the scene on their own, seconds per pass."""
-    simulation = scene_simulation(scene_name)
-    timer = PassTimer(simulation)
-    springs = timer.seconds_per_pass("springs", seconds, repeats)
-    contact = timer.seconds_per_pass("contact", seconds, repeats) if timer.has_contact else 0.0
-    return {"benchmark": "passes", "scene": scene_name,
-            "integrator": simulation.scene.simulation.integrator,
-            "size": f"{simulation.garment.columns}x{simulation.garment.rows}",
-            "particles": simulation.model.particle_count,
-            "substeps_per_second": 1.0 / (springs + contact),
-            "particle_substeps_per_second": simulation.model.particle_count / (springs + contact),
-            "springs_us_per_substep": round(1e6 * springs, 3),
-            "contact_us_per_substep": round(1e6 * contact, 3)}
-
-
-def bench_scene_run(scene_name: str) -> dict:
-    """The whole scene, every frame, as ``simulate`` runs it: simulated seconds per wall
-    second, compilation excluded."""
-    simulation = scene_simulation(scene_name)
-    frames = simulation.scene.frame_count
-    started = time.perf_counter()
-    record = simulation.run(frames)
-    wall = time.perf_counter() - started - record.wall_seconds["compile"]
-    simulated = frames / simulation.scene.scene.fps
-    substeps = frames * simulation.time_step.substeps_per_frame
-    return {"benchmark": "scene-run", "scene": scene_name,
-            "integrator": simulation.scene.simulation.integrator,
-            "size": f"{simulation.garment.columns}x{simulation.garment.rows}",
-            "particles": simulation.model.particle_count,
-            "substeps_per_second": substeps / wall,
-            "particle_substeps_per_second": substeps * simulation.model.particle_count / wall,
-            "frames": frames, "dt": simulation.time_step.dt, "simulated_seconds": simulated,
-            "wall_seconds": round(wall, 3),
-            "compile_seconds": round(record.wall_seconds["compile"], 3),
-            "simulated_seconds_per_wall_second": simulated / wall}
 
 
 def bench_implicit_frames(seconds: float, repeats: int) -> dict:
