@@ -6,7 +6,6 @@ import taichi as ti
 
 from taichi_cloth.effects.collision import CapsuleContact, CollisionSettings
 from taichi_cloth.effects.penalty import closest_on_segment, closest_points_numpy
-from taichi_cloth.physics.control import KinematicTrack
 from taichi_cloth.physics.model import Model
 
 from systems import assemble, one_spring_garment
@@ -125,30 +124,3 @@ def test_friction_is_bounded_and_opposes_sliding_on_the_moving_surface(capsule, 
         assert np.dot(tangential, slip_direction) < 0  # opposes the slip
         np.testing.assert_allclose(np.cross(np.r_[0, tangential], np.r_[0, slip_direction]), 0,
                                    atol=1e-12)
-
-
-def test_kinematic_track_interpolates_cubic_motion_exactly():
-    """Hermite interpolation reproduces p(t) = c0 + c1 t + c2 t² + c3 t³ and its derivative."""
-    coefficients = np.array([[0.1, -0.2, 0.3], [1.0, 0.5, -0.4], [-2.0, 0.3, 0.7], [0.6, -1.1, 0.2]])
-    times = np.linspace(0.2, 0.6, 5)
-    position = sum(c * times[:, None] ** k for k, c in enumerate(coefficients))
-    velocity = sum(k * c * times[:, None] ** (k - 1) for k, c in enumerate(coefficients) if k)
-    track = KinematicTrack(1, 5, ti.f64)
-    track.upload(0.2, 0.1, position[:, None, :], velocity[:, None, :])
-    probe = np.linspace(0.2, 0.6, 17)
-    got_position, got_velocity = np.zeros((17, 3)), np.zeros((17, 3))
-    sample_track(track, probe, got_position, got_velocity)
-    expect_position = sum(c * probe[:, None] ** k for k, c in enumerate(coefficients))
-    expect_velocity = sum(k * c * probe[:, None] ** (k - 1) for k, c in enumerate(coefficients) if k)
-    np.testing.assert_allclose(got_position, expect_position, atol=1e-12)
-    np.testing.assert_allclose(got_velocity, expect_velocity, atol=1e-10)
-
-
-@ti.kernel
-def sample_track(track: ti.template(), times: ti.types.ndarray(), position: ti.types.ndarray(),
-                 velocity: ti.types.ndarray()):
-    for i in range(times.shape[0]):
-        p, v = track.at(0, times[i])
-        for k in ti.static(range(3)):
-            position[i, k] = p[k]
-            velocity[i, k] = v[k]

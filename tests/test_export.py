@@ -135,7 +135,7 @@ def test_an_interrupted_video_or_frame_leaves_no_file(tmp_path, monkeypatch):
         Path(path).write_bytes(b"\x89PNG half")
         raise KeyboardInterrupt
 
-    monkeypatch.setattr("taichi_cloth.export.iio.imwrite", half_written)
+    monkeypatch.setattr("taichi_cloth.output.files.iio.imwrite", half_written)
     with pytest.raises(KeyboardInterrupt):
         write_png(tmp_path / "frame.png", np.zeros((4, 4, 3), np.uint8))
     assert list(tmp_path.iterdir()) == []

@@ -1,0 +1,226 @@
+"""Garment meshes: spring and triangle counts in closed form for a sheet and a periodic skirt,
+springs joining the right grid neighbours, triangle winding (outwards on a skirt, towards +z on
+a vertical sheet), UVs, lumped masses against the exact area, pins and the skirt's minimum size."""
+
+import math
+
+import numpy as np
+import pytest
+
+from taichi_cloth.cloth.garment import build_garment
+from taichi_cloth.config.materials import PRESETS
+from taichi_cloth.config.scene import load_scene
+from taichi_cloth.errors import InputError
+
+
+def garment_of(name, *overrides, material=None):
+    scene = load_scene(name, overrides)
+    return scene, build_garment(scene.cloth, material or scene.material, source=scene.path)
+
+
+def sheet_counts(columns, rows):
+    """Stretch: C−1 per row, R−1 per column; shear: two diagonals per cell; bend: C−2 skip-one
+    pairs per row, R−2 per column."""
+    return {"stretch": rows * (columns - 1) + columns * (rows - 1),
+            "shear": 2 * (columns - 1) * (rows - 1),
+            "bend": rows * (columns - 2) + columns * (rows - 2)}
+
+
+def skirt_counts(columns, rows):
+    """Around a ring of C particles there are C neighbour pairs and C skip-one pairs (the seam
+    closes); down, as on a sheet; shear: two diagonals per cell, C cells per band."""
+    return {"stretch": rows * columns + columns * (rows - 1),
+            "shear": 2 * columns * (rows - 1),
+            "bend": rows * columns + columns * (rows - 2)}
+
+
+@pytest.mark.parametrize("columns, rows", [(6, 5), (3, 7), (2, 2)])
+def test_sheet_spring_and_triangle_counts(columns, rows):
+    _, garment = garment_of("sheet", f"cloth.resolution=[{columns}, {rows}]")
+    assert {f: len(p) for f, p in garment.springs.items()} == sheet_counts(columns, rows)
+    assert len(garment.triangles) == 2 * (columns - 1) * (rows - 1)
+    assert garment.spring_count == sum(sheet_counts(columns, rows).values())
+
+
+@pytest.mark.parametrize("columns, rows", [(5, 3), (8, 4)])
+def test_skirt_spring_and_triangle_counts(columns, rows):
+    _, garment = garment_of("skirt", f"cloth.resolution=[{columns}, {rows}]")
+    assert {f: len(p) for f, p in garment.springs.items()} == skirt_counts(columns, rows)
+    assert len(garment.triangles) == 2 * columns * (rows - 1)
+    pairs = np.sort(np.concatenate(list(garment.springs.values())), axis=1)
+    assert len(np.unique(pairs, axis=0)) == len(pairs)  # even 5 around: no spring twice
+
+
+def test_only_the_declared_families_are_built():
+    _, garment = garment_of("sheet", "cloth.resolution=[4, 4]",
+                            "cloth.springs=['stretch', 'bend']")
+    assert set(garment.springs) == set(garment.spring_stiffness) == {"stretch", "bend"}
+
+
+def spring_lengths(garment, family):
+    ends = garment.springs[family]
+    return np.linalg.norm(garment.positions[ends[:, 1]] - garment.positions[ends[:, 0]], axis=1)
+
+
+def test_sheet_springs_join_neighbours_diagonals_and_skip_one_neighbours():
+    """A 1.0 × 0.6 m sheet of 5 × 4: spacings dx = 0.25, dz = 0.2 m."""
+    _, garment = garment_of("sheet", "cloth.resolution=[5, 4]", "cloth.size=[1.0, 0.6]")
+    dx, dz = 0.25, 0.2
+    stretch = spring_lengths(garment, "stretch")
+    assert np.sum(np.isclose(stretch, dx, atol=1e-12)) == 4 * 4
+    assert np.sum(np.isclose(stretch, dz, atol=1e-12)) == 5 * 3
+    np.testing.assert_allclose(spring_lengths(garment, "shear"), math.hypot(dx, dz), atol=1e-12)
+    bend = spring_lengths(garment, "bend")
+    assert np.sum(np.isclose(bend, 2 * dx, atol=1e-12)) == 4 * 3
+    assert np.sum(np.isclose(bend, 2 * dz, atol=1e-12)) == 5 * 2
+
+
+def test_rectangular_cells_get_the_materials_spring_constants():
+    """materials: stretch k_m·dz/dx along x and k_m·dx/dz down; shear G(dx² + dz²)/(2dx·dz);
+    bend B/(dx·dz) (each cell the same continuum stiffness whatever its aspect)."""
+    silk = PRESETS["silk"]
+    _, garment = garment_of("sheet", "cloth.resolution=[5, 4]", "cloth.size=[1.0, 0.6]",
+                            material=silk)
+    dx, dz = 0.25, 0.2
+    stretch, lengths = garment.spring_stiffness["stretch"], spring_lengths(garment, "stretch")
+    along_x = np.isclose(lengths, dx)
+    np.testing.assert_allclose(stretch[along_x], silk.stretch_stiffness * dz / dx, rtol=1e-12)
+    np.testing.assert_allclose(stretch[~along_x], silk.stretch_stiffness * dx / dz, rtol=1e-12)
+    np.testing.assert_allclose(garment.spring_stiffness["shear"],
+                               silk.shear_stiffness * (dx * dx + dz * dz) / (2 * dx * dz),
+                               rtol=1e-12)
+    np.testing.assert_allclose(garment.spring_stiffness["bend"],
+                               silk.bend_stiffness / (dx * dz), rtol=1e-12)
+
+
+def test_skirt_seam_closes_with_springs_as_long_as_the_others():
+    """Around a ring of radius r with C particles, neighbours are a chord 2r·sin(π/C) apart and
+    skip-one pairs 2r·sin(2π/C), across the seam as anywhere else."""
+    scene, garment = garment_of("skirt", "cloth.resolution=[7, 3]")
+    columns, rows = 7, 3
+    radius = scene.cloth.waist_radius + (scene.cloth.hem_radius - scene.cloth.waist_radius) \
+        * np.arange(rows) / (rows - 1)
+    ring = np.repeat(radius, columns)
+    for family, step in (("stretch", 1), ("bend", 2)):
+        ends = garment.springs[family]
+        around = ends[:, 0] // columns == ends[:, 1] // columns
+        assert around.sum() == columns * rows
+        chord = 2 * ring[ends[around, 0]] * math.sin(step * math.pi / columns)
+        np.testing.assert_allclose(spring_lengths(garment, family)[around], chord, rtol=1e-12)
+        seam = {(r * columns + columns - step + k, r * columns + k)
+                for r in range(rows) for k in range(step)}
+        assert seam <= {tuple(p) for p in ends[around].tolist()}
+
+
+def triangle_normals(garment):
+    p0, p1, p2 = (garment.positions[garment.triangles[:, k]] for k in range(3))
+    return np.cross(p1 - p0, p2 - p0), (p0 + p1 + p2) / 3
+
+
+def test_vertical_sheet_triangles_face_plus_z():
+    """Counter-clockwise seen from +z (Garment's docstring): every normal is +z, none is
+    degenerate."""
+    _, garment = garment_of("sheet", "cloth.resolution=[5, 4]", "cloth.orientation='vertical'")
+    normals, _ = triangle_normals(garment)
+    np.testing.assert_allclose(normals[:, :2], 0.0, atol=1e-15)
+    assert np.all(normals[:, 2] > 0)
+
+
+def test_horizontal_sheet_triangles_share_one_side():
+    _, garment = garment_of("sheet", "cloth.resolution=[5, 4]",
+                            "cloth.orientation='horizontal'")
+    normals, _ = triangle_normals(garment)
+    np.testing.assert_allclose(normals[:, [0, 2]], 0.0, atol=1e-15)
+    assert np.all(normals[:, 1] > 0) or np.all(normals[:, 1] < 0)
+
+
+@pytest.mark.parametrize("columns, rows", [(5, 2), (9, 4)])
+def test_skirt_triangles_face_outwards(columns, rows):
+    """Counter-clockwise seen from outside: the normal points away from the y axis (the cone's
+    axis), seam triangles included."""
+    _, garment = garment_of("skirt", f"cloth.resolution=[{columns}, {rows}]")
+    normals, centres = triangle_normals(garment)
+    radial = centres * np.array([1.0, 0.0, 1.0])
+    assert np.all(np.einsum("tk,tk->t", normals, radial) > 0)
+
+
+@pytest.mark.parametrize("name, periodic", [("sheet", False), ("skirt", True)])
+def test_uvs_span_the_unit_square_along_columns_and_down_rows(name, periodic):
+    columns, rows = 6, 4
+    _, garment = garment_of(name, f"cloth.resolution=[{columns}, {rows}]")
+    uv = garment.uvs.reshape(rows, columns, 2)
+    assert garment.uvs.min() >= 0.0 and garment.uvs.max() <= 1.0
+    assert np.all(np.diff(uv[..., 0], axis=1) > 0)  # u grows along each row
+    assert np.all(np.diff(uv[..., 1], axis=0) < 0)  # v falls down each column
+    np.testing.assert_allclose(uv[0, :, 1], 1.0)    # top row at v = 1
+    np.testing.assert_allclose(uv[-1, :, 1], 0.0)   # bottom row at v = 0
+    np.testing.assert_allclose(uv[:, 0, 0], 0.0)
+    # a sheet's last column reaches u = 1; a skirt's stops a cell short (the seam wraps to 0)
+    np.testing.assert_allclose(uv[:, -1, 0], (columns - 1) / columns if periodic else 1.0)
+
+
+@pytest.mark.parametrize("orientation", ["vertical", "horizontal"])
+def test_sheet_mass_is_density_times_its_area(orientation):
+    scene, garment = garment_of("sheet", "cloth.resolution=[7, 4]", "cloth.size=[1.3, 0.7]",
+                                f"cloth.orientation='{orientation}'")
+    assert garment.mass.sum() == pytest.approx(scene.material.density * 1.3 * 0.7, rel=1e-12)
+    assert np.all(garment.mass > 0)
+    # an interior particle lumps a third of six half cells: one whole cell
+    interior = garment.mass.reshape(4, 7)[1:-1, 1:-1]
+    np.testing.assert_allclose(interior, scene.material.density * (1.3 / 6) * (0.7 / 3),
+                               rtol=1e-12)
+
+
+def test_skirt_mass_is_density_times_the_faceted_frustum_area():
+    """Between two rings, each cell is a planar isosceles trapezoid: parallel chords
+    c = 2r·sin(π/C) and height √((Δr·cos(π/C))² + Δy²) between their midpoints."""
+    columns, rows = 9, 5
+    scene, garment = garment_of("skirt", f"cloth.resolution=[{columns}, {rows}]")
+    cloth = scene.cloth
+    fraction = np.linspace(0.0, 1.0, rows)
+    radius = cloth.waist_radius + (cloth.hem_radius - cloth.waist_radius) * fraction
+    drop = math.sqrt(cloth.length ** 2 - (cloth.hem_radius - cloth.waist_radius) ** 2)
+    height = cloth.waist_height - drop * fraction
+    chord = 2 * radius * math.sin(math.pi / columns)
+    slant = np.hypot(np.diff(radius) * math.cos(math.pi / columns), np.diff(height))
+    area = columns * np.sum(0.5 * (chord[:-1] + chord[1:]) * slant)
+    assert garment.mass.sum() == pytest.approx(scene.material.density * area, rel=1e-12)
+    rings = garment.mass.reshape(rows, columns)
+    np.testing.assert_allclose(rings, np.broadcast_to(rings[:, :1], rings.shape), rtol=1e-12)
+
+
+def test_skirt_hangs_from_the_given_waist_height():
+    scene, garment = garment_of("skirt", "cloth.resolution=[6, 3]")
+    worn = build_garment(scene.cloth, scene.material, waist_height=0.8)
+    np.testing.assert_allclose(worn.positions[:6, 1], 0.8)
+    np.testing.assert_allclose(worn.positions - garment.positions,
+                               np.broadcast_to([0.0, 0.8 - scene.cloth.waist_height, 0.0],
+                                               worn.positions.shape), atol=1e-15)
+
+
+@pytest.mark.parametrize("name, pin, pinned", [
+    ("sheet", "top-edge", [0, 1, 2, 3, 4]),
+    ("sheet", "corners", [0, 4]),
+    ("sheet", "none", []),
+    ("skirt", "waist", [0, 1, 2, 3, 4]),
+    ("skirt", "none", []),
+])
+def test_pins(name, pin, pinned):
+    _, garment = garment_of(name, "cloth.resolution=[5, 3]", f"cloth.pin='{pin}'")
+    assert np.flatnonzero(garment.pinned).tolist() == pinned
+    top = garment.positions[:5, 1]
+    assert np.all(garment.positions[garment.pinned, 1] == top.max())  # pins are on the top row
+
+
+@pytest.mark.parametrize("columns", [2, 4])
+def test_skirt_with_fewer_than_five_columns_is_refused(columns):
+    """Four around would put a skip-one spring on top of the one across the seam, twice."""
+    scene = load_scene("skirt", (f"cloth.resolution=[{columns}, 4]",))
+    with pytest.raises(InputError, match="at least 5"):
+        build_garment(scene.cloth, scene.material, source=scene.path)
+
+
+def test_skirt_shorter_than_its_flare_is_refused():
+    scene = load_scene("skirt", ("cloth.resolution=[8, 4]", "cloth.length=0.2"))
+    with pytest.raises(InputError, match="cloth.length"):
+        build_garment(scene.cloth, scene.material, source=scene.path)

@@ -1,0 +1,194 @@
+"""The time step: a requested dt rounded to whole substeps per frame, the highest frequency of the
+cloth against the exact eigenvalues of M⁻¹K, and ``dt = "auto"`` against the closed-form
+stability limits of the integrators on one spring."""
+
+import math
+
+import numpy as np
+import pytest
+
+from taichi_cloth.cloth.garment import build_garment
+from taichi_cloth.config.scene import load_scene
+from taichi_cloth.errors import InputError
+from taichi_cloth.physics.timestep import choose_time_step, fixed_time_step, highest_frequency
+
+FRAME = 1.0 / 30.0
+
+
+@pytest.mark.parametrize("requested, substeps", [
+    (0.002, 17),         # 16.67 steps per frame round up to 17
+    (1.0 / 60.0, 2),     # an exact divisor is kept
+    (1.0 / 300.0, 10),   # another one, despite 1/30 ÷ 1/300 rounding to 10.000000000000002
+    (0.1, 1),            # longer than the frame: the frame itself
+])
+def test_fixed_step_splits_the_frame_into_the_fewest_equal_substeps(requested, substeps):
+    step = fixed_time_step(requested, FRAME)
+    assert step.substeps_per_frame == substeps
+    assert step.dt == pytest.approx(FRAME / substeps, rel=1e-15)
+    assert step.dt <= requested * (1 + 1e-12)
+    if substeps > 1:
+        assert FRAME / (substeps - 1) > requested  # one substep fewer would be too long
+
+
+def test_fixed_step_of_seventeen_substeps_is_one_five_hundred_and_tenth():
+    assert fixed_time_step(0.002, FRAME).dt == pytest.approx(1.0 / 510.0, rel=1e-15)
+
+
+def test_random_requests_never_exceed_the_request_and_use_the_fewest_substeps():
+    rng = np.random.default_rng(11)
+    for requested in 10.0 ** rng.uniform(-5, -1, 200):
+        step = fixed_time_step(requested, FRAME)
+        assert step.dt * step.substeps_per_frame == pytest.approx(FRAME, rel=1e-14)
+        assert step.dt <= requested * (1 + 1e-9)
+        assert step.substeps_per_frame == 1 or FRAME / (step.substeps_per_frame - 1) > requested
+
+
+def stiffness_matrix(positions, ends, stiffness):
+    """K (3N × 3N) of springs at rest: blocks k·n·nᵀ on the diagonal, −k·n·nᵀ off it."""
+    count = len(positions)
+    matrix = np.zeros((3 * count, 3 * count))
+    for (i, j), k in zip(ends, stiffness):
+        direction = positions[j] - positions[i]
+        direction /= np.linalg.norm(direction)
+        block = k * np.outer(direction, direction)
+        for a, b, sign in ((i, i, 1), (j, j, 1), (i, j, -1), (j, i, -1)):
+            matrix[3 * a:3 * a + 3, 3 * b:3 * b + 3] += sign * block
+    return matrix
+
+
+def exact_largest_eigenvalue(positions, ends, stiffness, mass, free):
+    """λ_max of M⁻¹K on the free particles, from the symmetric M^-½·K·M^-½."""
+    dofs = np.repeat(free, 3)
+    scale = 1.0 / np.sqrt(np.repeat(mass, 3))[dofs]
+    reduced = stiffness_matrix(positions, ends, stiffness)[np.ix_(dofs, dofs)]
+    return float(np.linalg.eigvalsh(scale[:, None] * reduced * scale[None, :]).max())
+
+
+def gershgorin_bound(ends, stiffness, mass, free):
+    """max over free particles of 2·Σ_{springs at i} k / m_i."""
+    bound = 0.0
+    for i in np.flatnonzero(free):
+        touching = (ends[:, 0] == i) | (ends[:, 1] == i)
+        bound = max(bound, 2.0 * stiffness[touching].sum() / mass[i])
+    return bound
+
+
+def free_chain():
+    """Eight particles on a jittered line, every one free, uneven springs and masses."""
+    rng = np.random.default_rng(5)
+    count = 8
+    positions = np.stack([0.1 * np.arange(count), np.zeros(count), np.zeros(count)], axis=1)
+    positions += 0.02 * rng.standard_normal(positions.shape)
+    ends = np.stack([np.arange(count - 1), np.arange(1, count)], axis=1)
+    return (positions, ends, rng.uniform(50.0, 200.0, count - 1),
+            rng.uniform(0.01, 0.05, count), np.ones(count, dtype=bool))
+
+
+def pinned_grid():
+    """A 4 × 4 cotton sheet with all three spring families, hanging from its two top corners."""
+    scene = load_scene("sheet", ("cloth.resolution=[4, 4]",))
+    garment = build_garment(scene.cloth, scene.material)
+    ends = np.concatenate([garment.springs[f] for f in garment.springs])
+    stiffness = np.concatenate([garment.spring_stiffness[f] for f in garment.springs])
+    return garment.positions, ends, stiffness, garment.mass, ~garment.pinned
+
+
+@pytest.mark.parametrize("system", [free_chain, pinned_grid])
+def test_highest_frequency_brackets_the_exact_eigenvalue(system):
+    """λ ≤ ω² ≤ min(1.1·λ, Gershgorin): never below the truth (a step from it is stable), and
+    at most the 10 % headroom above it. With uneven masses u·M⁻¹Ku/|u|² is no Rayleigh
+    quotient and may overshoot λ slightly before it converges: 1e-6 of slack above 1.1·λ."""
+    positions, ends, stiffness, mass, free = system()
+    exact = exact_largest_eigenvalue(positions, ends, stiffness, mass, free)
+    omega = highest_frequency(positions.copy(), ends, stiffness, mass, free)
+    bound = gershgorin_bound(ends, stiffness, mass, free)
+    assert exact <= bound * (1 + 1e-12)  # the oracle's own bound holds
+    assert omega ** 2 >= 0.999 * exact
+    assert omega ** 2 <= 1.1 * exact * (1 + 1e-6)
+    assert omega ** 2 <= bound * (1 + 1e-12)
+
+
+def test_highest_frequency_ignores_pinned_particles():
+    """A light particle that is pinned sets no frequency: only the free ones count."""
+    positions, ends, stiffness, mass, free = free_chain()
+    mass = mass.copy()
+    mass[0] = 1e-6  # a free particle this light would dominate ω_max
+    free = free.copy()
+    free[0] = False
+    exact = exact_largest_eigenvalue(positions, ends, stiffness, mass, free)
+    omega = highest_frequency(positions.copy(), ends, stiffness, mass, free)
+    assert 0.999 * exact <= omega ** 2 <= 1.1 * exact * (1 + 1e-6)
+    assert omega ** 2 < 2.0 * stiffness[0] / 1e-6  # far below the pinned particle's own rate
+
+
+def one_spring(omega):
+    """Particle 0 pinned, particle 1 (1 kg) free on a spring of stiffness ω² along x."""
+    return dict(positions=np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]]),
+                ends=np.array([[0, 1]]), stiffness=np.array([omega ** 2]),
+                mass=np.ones(2), free=np.array([False, True]))
+
+
+def symplectic_limit(zeta):
+    """Largest ωh of symplectic Euler on ẍ = −ω²x − 2ζω·ẋ: its step matrix has
+    det = 1 − 2ζy and trace = 2 − 2ζy − y² (y = ωh); Jury's conditions |det| ≤ 1,
+    1 − trace + det = y² ≥ 0 and 1 + trace + det ≥ 0 give y ≤ min(1/ζ, 2·(√(ζ² + 1) − ζ)),
+    i.e. y ≤ 2 undamped."""
+    return min(1.0 / zeta if zeta > 0 else math.inf, 2.0 * (math.sqrt(zeta ** 2 + 1) - zeta))
+
+
+def test_auto_symplectic_step_stays_inside_omega_h_below_two():
+    """docs/physics.md: undamped symplectic Euler is stable exactly for ωh ≤ 2; the auto step is
+    ``safety`` times that, for ω_max a little above the spring's ω."""
+    omega, safety = 250.0, 0.8
+    step = choose_time_step("auto", FRAME, "symplectic", damping_time=0.0, contact_modes=[],
+                            safety=safety, **one_spring(omega))
+    assert omega <= step.omega_max <= math.sqrt(1.1) * omega * (1 + 1e-12)
+    assert step.stable_dt * step.omega_max == pytest.approx(symplectic_limit(0.0), rel=1e-6)
+    assert step.dt * omega <= 2.0 * safety
+    assert step.dt * step.substeps_per_frame == pytest.approx(FRAME, rel=1e-14)
+    assert FRAME / (step.substeps_per_frame - 1) > safety * step.stable_dt  # fewest substeps
+
+
+def test_auto_explicit_euler_with_rayleigh_damping_is_limited_by_the_damping_time():
+    """docs/physics.md: explicit Euler on a mode of ratio ζ < 1 is stable for ωh ≤ 2ζ; Rayleigh damping
+    gives ζ = β·ω/2, so every underdamped mode allows exactly h ≤ β."""
+    omega, damping_time = 100.0, 0.005  # ζ at ω_max ≈ 0.26
+    step = choose_time_step("auto", FRAME, "euler", damping_time=damping_time, contact_modes=[],
+                            safety=0.8, **one_spring(omega))
+    assert step.stable_dt == pytest.approx(damping_time, rel=1e-6)
+    assert step.dt <= 0.8 * damping_time
+
+
+def test_auto_step_also_respects_the_contact_modes():
+    """A stiff penalty contact (k̂ = 1e6 1/s², ζ = 0.5) adds k̂ to ω_max² and two modes at
+    ω = √k̂: its normal spring (ζ = 0.5, y ≤ 1.236) and its friction damper (ζ = 1,
+    y ≤ 2(√2 − 1) = 0.828), which is the binding one."""
+    omega, contact = 10.0, 1e6
+    step = choose_time_step("auto", FRAME, "symplectic", damping_time=0.0,
+                            contact_modes=[(contact, 0.5)], safety=0.8, **one_spring(omega))
+    assert omega ** 2 + contact <= step.omega_max ** 2 <= 1.1 * omega ** 2 + contact + 1e-6
+    friction_limit = symplectic_limit(1.0) / math.sqrt(contact)
+    assert friction_limit < symplectic_limit(0.5) / math.sqrt(contact)
+    assert friction_limit < 2.0 / step.omega_max  # neither normal nor springs bind
+    assert step.stable_dt == pytest.approx(friction_limit, rel=1e-6)
+
+
+def test_auto_implicit_step_is_half_a_frame():
+    step = choose_time_step("auto", FRAME, "implicit", damping_time=0.0, contact_modes=[],
+                            safety=0.8, **one_spring(1e4))
+    assert step.substeps_per_frame == 2
+    assert step.dt == pytest.approx(FRAME / 2, rel=1e-15)
+    assert step.stable_dt is None
+
+
+def test_auto_explicit_euler_without_damping_is_refused():
+    """Explicit Euler grows every undamped mode by 1 + (ωh)² per step: no step is stable."""
+    with pytest.raises(InputError, match="euler.*damping"):
+        choose_time_step("auto", FRAME, "euler", damping_time=0.0, contact_modes=[],
+                         safety=0.8, **one_spring(50.0))
+
+
+def test_a_requested_step_bypasses_the_estimate():
+    step = choose_time_step(0.002, FRAME, "euler", damping_time=0.0, contact_modes=[],
+                            safety=0.8, **one_spring(1e6))
+    assert (step.substeps_per_frame, step.omega_max, step.stable_dt) == (17, None, None)
