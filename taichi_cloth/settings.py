@@ -42,9 +42,12 @@ class SourceContext:
         self.overridden = overridden
 
     def error(self, dotted: str, problem: str) -> InputError:
-        for key in self.overridden:
-            if dotted == key or dotted.startswith(key + ".") or key.startswith(dotted + "."):
-                return InputError(f"--set {key}: {problem}")
+        """The error at ``dotted``, naming the most specific --set key that reaches it (or the
+        file)."""
+        matching = [key for key in self.overridden
+                    if dotted == key or dotted.startswith(key + ".") or key.startswith(dotted + ".")]
+        if matching:
+            return InputError(f"--set {max(matching, key=len)}: {problem}")
         return InputError(f"{self.path}: {dotted}: {problem}")
 
 

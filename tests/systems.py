@@ -36,6 +36,8 @@ def assemble(model: Model, effects=(), packed: bool = False, integrator: str | N
     context = EffectContext(model, control)
     built = [effect(settings, context) for effect, settings in effects]
     control.upload()
+    for effect in built:
+        effect.upload()
     forces = Forces(model, built, packed_grid_for(model, packed))
     stepper = None
     if integrator is not None:

@@ -24,7 +24,8 @@ G = GravitySettings().g
 
 def skirt_model(around: int, down: int) -> Model:
     """A periodic grid (the skirt) with dashpots: the halo and the damping term."""
-    cloth = ClothConfig(shape="skirt", resolution=(around, down), pin="waist")
+    cloth = ClothConfig(shape="skirt", resolution=(around, down), pin="waist",
+                        bending="springs")
     return Model(build_garment(cloth, PRESETS["silk"]), "f32", 1.0)
 
 

@@ -31,7 +31,7 @@ def run_scene(name, *overrides, frames=None):
 
 def test_hula_at_the_papers_step_stays_finite_on_the_waist_and_outside_the_body():
     """Seed §4.2: FB (symplectic) Euler at Δt = 0.002 s is stable; the whole 5 s dance."""
-    simulation, record, waist_errors = run_scene("hula", "simulation.dt=0.002",
+    simulation, record, waist_errors = run_scene("hula-paper", "simulation.dt=0.002",
                                                  "simulation.integrator=symplectic")
     assert simulation.time_step.dt <= 0.002
     assert len(record.frames) == simulation.scene.frame_count == 150

@@ -36,7 +36,8 @@ def skirt_counts(columns, rows):
 
 @pytest.mark.parametrize("columns, rows", [(6, 5), (3, 7), (2, 2)])
 def test_sheet_spring_and_triangle_counts(columns, rows):
-    _, garment = garment_of("sheet", f"cloth.resolution=[{columns}, {rows}]")
+    _, garment = garment_of("sheet", f"cloth.resolution=[{columns}, {rows}]",
+                            "cloth.bending=springs")
     assert {f: len(p) for f, p in garment.springs.items()} == sheet_counts(columns, rows)
     assert len(garment.triangles) == 2 * (columns - 1) * (rows - 1)
     assert garment.spring_count == sum(sheet_counts(columns, rows).values())
@@ -44,7 +45,8 @@ def test_sheet_spring_and_triangle_counts(columns, rows):
 
 @pytest.mark.parametrize("columns, rows", [(5, 3), (8, 4)])
 def test_skirt_spring_and_triangle_counts(columns, rows):
-    _, garment = garment_of("skirt", f"cloth.resolution=[{columns}, {rows}]")
+    _, garment = garment_of("skirt", f"cloth.resolution=[{columns}, {rows}]",
+                            "cloth.bending=springs")
     assert {f: len(p) for f, p in garment.springs.items()} == skirt_counts(columns, rows)
     assert len(garment.triangles) == 2 * columns * (rows - 1)
     pairs = np.sort(np.concatenate(list(garment.springs.values())), axis=1)
@@ -52,9 +54,12 @@ def test_skirt_spring_and_triangle_counts(columns, rows):
 
 
 def test_only_the_declared_families_are_built():
-    _, garment = garment_of("sheet", "cloth.resolution=[4, 4]",
-                            "cloth.springs=['stretch', 'bend']")
+    _, garment = garment_of("sheet", "cloth.resolution=[4, 4]", "cloth.springs=['stretch']",
+                            "cloth.bending=springs")
     assert set(garment.springs) == set(garment.spring_stiffness) == {"stretch", "bend"}
+    _, curvature = garment_of("sheet", "cloth.resolution=[4, 4]", "cloth.springs=['stretch']")
+    assert set(curvature.springs) == {"stretch"}
+    assert len(curvature.hinges) == 2 * (3 * 2) + 3 * 3  # interior edges of a 4 × 4 grid
 
 
 def spring_lengths(garment, family):
@@ -64,7 +69,8 @@ def spring_lengths(garment, family):
 
 def test_sheet_springs_join_neighbours_diagonals_and_skip_one_neighbours():
     """A 1.0 × 0.6 m sheet of 5 × 4: spacings dx = 0.25, dz = 0.2 m."""
-    _, garment = garment_of("sheet", "cloth.resolution=[5, 4]", "cloth.size=[1.0, 0.6]")
+    _, garment = garment_of("sheet", "cloth.resolution=[5, 4]", "cloth.size=[1.0, 0.6]",
+                            "cloth.bending=springs")
     dx, dz = 0.25, 0.2
     stretch = spring_lengths(garment, "stretch")
     assert np.sum(np.isclose(stretch, dx, atol=1e-12)) == 4 * 4
@@ -76,16 +82,23 @@ def test_sheet_springs_join_neighbours_diagonals_and_skip_one_neighbours():
 
 
 def test_rectangular_cells_get_the_materials_spring_constants():
-    """materials: stretch k_m·dz/dx along x and k_m·dx/dz down; shear G(dx² + dz²)/(2dx·dz);
-    bend B/(dx·dz) (each cell the same continuum stiffness whatever its aspect)."""
+    """materials: stretch k_weft·dz/dx along x (the weft) and k_warp·dx/dz down (the warp);
+    shear G(dx² + dz²)/(2dx·dz); bend B/(dx·dz) (each cell the same continuum stiffness whatever
+    its aspect). Cut on the bias (45°), both stretch families take the mean modulus."""
     silk = PRESETS["silk"]
+    assert silk.stretch_weft != silk.stretch_stiffness  # an anisotropic preset
     _, garment = garment_of("sheet", "cloth.resolution=[5, 4]", "cloth.size=[1.0, 0.6]",
-                            material=silk)
+                            "cloth.bending=springs", material=silk)
     dx, dz = 0.25, 0.2
     stretch, lengths = garment.spring_stiffness["stretch"], spring_lengths(garment, "stretch")
     along_x = np.isclose(lengths, dx)
-    np.testing.assert_allclose(stretch[along_x], silk.stretch_stiffness * dz / dx, rtol=1e-12)
+    np.testing.assert_allclose(stretch[along_x], silk.stretch_weft * dz / dx, rtol=1e-12)
     np.testing.assert_allclose(stretch[~along_x], silk.stretch_stiffness * dx / dz, rtol=1e-12)
+    _, biased = garment_of("sheet", "cloth.resolution=[5, 4]", "cloth.size=[1.0, 0.6]",
+                           "cloth.bias=45", material=silk)
+    mean = 0.5 * (silk.stretch_stiffness + silk.stretch_weft)
+    np.testing.assert_allclose(biased.spring_stiffness["stretch"][along_x], mean * dz / dx,
+                               rtol=1e-12)
     np.testing.assert_allclose(garment.spring_stiffness["shear"],
                                silk.shear_stiffness * (dx * dx + dz * dz) / (2 * dx * dz),
                                rtol=1e-12)
@@ -96,7 +109,7 @@ def test_rectangular_cells_get_the_materials_spring_constants():
 def test_skirt_seam_closes_with_springs_as_long_as_the_others():
     """Around a ring of radius r with C particles, neighbours are a chord 2r·sin(π/C) apart and
     skip-one pairs 2r·sin(2π/C), across the seam as anywhere else."""
-    scene, garment = garment_of("skirt", "cloth.resolution=[7, 3]")
+    scene, garment = garment_of("skirt", "cloth.resolution=[7, 3]", "cloth.bending=springs")
     columns, rows = 7, 3
     radius = scene.cloth.waist_radius + (scene.cloth.hem_radius - scene.cloth.waist_radius) \
         * np.arange(rows) / (rows - 1)

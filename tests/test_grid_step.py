@@ -44,7 +44,7 @@ class FloorProjection:
 def skirt_model() -> Model:
     """A 64 × 17 skirt (periodic columns, above the packed minimum) of the benchmark's soft
     fabric with dashpots (β = 2 ms)."""
-    cloth = ClothConfig(shape="skirt", resolution=(64, 17), pin="waist")
+    cloth = ClothConfig(shape="skirt", resolution=(64, 17), pin="waist", bending="springs")
     material = dataclasses.replace(REFERENCE_MATERIAL, damping=2e-3)
     return Model(build_garment(cloth, material), "f32", 1.0)
 

@@ -54,7 +54,9 @@ BAD_INPUT = [
     (("cloth.material.density=nan",), ["cloth.material.density", "finite"]),
     (("scene.fps='thirty'",), ["scene.fps", "integer"]),
     (("scene.duration=inf",), ["scene.duration", "finite"]),
-    (("cloth.springs=['stretch', 'twist']",), ["cloth.springs[1]", "'bend'"]),
+    (("cloth.springs=['stretch', 'twist']",), ["cloth.springs[1]", "'shear'"]),
+    (("cloth.springs=['stretch', 'bend']",), ["cloth.springs", "cloth.bending = \"springs\""]),
+    (("cloth.bending=springs", "effects.bending.scale=2"), ["effects.bending", "curvature"]),
     (("output.meshes=['stl']",), ["output.meshes[0]", "'obj'"]),
     (("cloth.resolution",), ["--set cloth.resolution", "KEY=VALUE"]),
     (("cloth.resolution=[1,",), ["--set cloth.resolution", "not a valid TOML"]),
@@ -113,7 +115,7 @@ def test_cli_simulate_writes_stats(tmp_path):
     assert result.returncode == 0, result.stderr
     stats = json.loads((tmp_path / "stats.json").read_text())
     assert stats["frames"] == 2 and stats["particles"] == 36 and stats["finite"]
-    assert stats["effects"] == ["gravity", "damping", "drag"]
+    assert stats["effects"] == ["gravity", "damping", "bending", "drag"]
     assert [f["frame"] for f in stats["per_frame"]] == [0, 1]
 
 

@@ -12,12 +12,12 @@ diagonals, bend between skip-one neighbours. Per-spring stiffness follows ``mate
 local rest spacing; particle masses lump areal density × one third of each adjacent triangle.
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from taichi_cloth.errors import InputError
-from taichi_cloth.cloth.topology import grid_springs, grid_triangles, lumped_mass
+from taichi_cloth.cloth.topology import grid_springs, grid_triangles, hinge_stencils, lumped_mass
 from taichi_cloth.config.materials import Material, spring_constants
 from taichi_cloth.config.scene import ClothConfig
 
@@ -29,7 +29,11 @@ class Garment:
     positions (N,3) m; uvs (N,2) texture coordinates in [0,1]; triangles (T,3) particle indices,
     counter-clockwise seen from outside (skirt) or from +z (vertical sheet); springs: family name →
     (S_f,2) particle indices; spring_stiffness: family → (S_f,) N/m; mass (N,) kg; pinned (N,) bool;
-    columns, rows: grid shape; periodic: whether columns wrap around (skirt).
+    columns, rows: grid shape; periodic: whether columns wrap around (skirt); damping_time: the
+    fabric's Rayleigh damping time β [s]; bending_rigidity: (B_warp, B_weft) [N·m]; warp (N,3):
+    the unit warp direction in the rest shape at each particle (down the rows, turned by the bias
+    towards the columns); hinges (H,4): the bending stencils of the triangles
+    (``topology.hinge_stencils``).
     """
 
     positions: np.ndarray
@@ -43,6 +47,9 @@ class Garment:
     rows: int
     periodic: bool
     damping_time: float
+    bending_rigidity: tuple = (0.0, 0.0)
+    warp: np.ndarray | None = None
+    hinges: np.ndarray = field(default_factory=lambda: np.zeros((0, 4), np.int32))
 
     @property
     def particle_count(self) -> int:
@@ -79,23 +86,53 @@ def skirt_positions(cloth: ClothConfig, waist_height: float) -> np.ndarray:
     return np.stack([x, y, z], axis=-1).reshape(-1, 3)
 
 
-def pinned_particles(cloth: ClothConfig) -> np.ndarray:
+def disc_positions(cloth: ClothConfig) -> np.ndarray:
+    """A flat annulus at y = height: rings evenly spaced from waist_radius to hem_radius."""
+    around, rings = cloth.resolution
+    angle = 2 * np.pi * np.arange(around) / around
+    radius = np.linspace(cloth.waist_radius, cloth.hem_radius, rings)
+    x = radius[:, None] * np.cos(angle)[None, :]
+    z = radius[:, None] * np.sin(angle)[None, :]
+    return np.stack([x, np.full_like(x, cloth.height), z], axis=-1).reshape(-1, 3)
+
+
+def pinned_particles(cloth: ClothConfig, positions: np.ndarray) -> np.ndarray:
     columns, rows = cloth.resolution
     pinned = np.zeros(columns * rows, dtype=bool)
-    if cloth.pin in ("waist", "top-edge"):
+    if cloth.pin == "waist":
         pinned[:columns] = True
+    elif cloth.pin == "top-edge":
+        pinned[:columns * min(cloth.pin_rows, rows)] = True
     elif cloth.pin == "corners":
         pinned[[0, columns - 1]] = True
+    elif cloth.pin == "clamp":
+        pinned = np.hypot(positions[:, 0], positions[:, 2]) <= cloth.clamp_radius + 1e-12
     return pinned
 
 
+def grid_tangents(positions: np.ndarray, columns: int, rows: int, periodic: bool):
+    """Unit tangents (N,3) of the rest grid down the rows (v) and along the rows, made
+    orthogonal to v (u); the last row or column reuses the one before it."""
+    grid = positions.reshape(rows, columns, 3)
+    down = np.diff(grid, axis=0)
+    down = np.concatenate([down, down[-1:]], axis=0)
+    across = np.roll(grid, -1, axis=1) - grid if periodic else np.diff(grid, axis=1)
+    if not periodic:
+        across = np.concatenate([across, across[:, -1:]], axis=1)
+    v = down.reshape(-1, 3) / np.linalg.norm(down.reshape(-1, 3), axis=1, keepdims=True)
+    u = across.reshape(-1, 3)
+    u = u - np.einsum("nk,nk->n", u, v)[:, None] * v
+    return u / np.linalg.norm(u, axis=1, keepdims=True), v
+
+
 def family_stiffness(positions: np.ndarray, springs: dict, material: Material, columns: int,
-                     rows: int, periodic: bool) -> dict:
+                     rows: int, periodic: bool, warp: np.ndarray) -> dict:
     """Per-spring stiffness [N/m] from the local rest spacing of each spring's two particles.
 
     A particle's spacing along a row (dx) is its distance to its right neighbour; down a column
     (dz) to the particle below (the last column or row reuses the one before it).
-    ``materials.spring_constants`` maps (dx, dz) to stiffness.
+    ``materials.spring_constants`` maps (dx, dz) and each stretch spring's angle to the warp
+    (``warp``: (N, 3) unit vectors, averaged over the spring's ends) to stiffness.
     """
     grid = positions.reshape(rows, columns, 3)
     if periodic:
@@ -109,7 +146,12 @@ def family_stiffness(positions: np.ndarray, springs: dict, material: Material, c
     stiffness = {}
     for family, pairs in springs.items():
         a, b = pairs[:, 0], pairs[:, 1]
-        constants = spring_constants(material, 0.5 * (dx[a] + dx[b]), 0.5 * (dz[a] + dz[b]))
+        direction = positions[b] - positions[a]
+        grain = warp[a] + warp[b]
+        cos_sq = np.einsum("sk,sk->s", direction, grain) ** 2 / (
+            np.einsum("sk,sk->s", direction, direction) * np.einsum("sk,sk->s", grain, grain))
+        constants = spring_constants(material, 0.5 * (dx[a] + dx[b]), 0.5 * (dz[a] + dz[b]),
+                                     cos_sq, cos_sq)
         horizontal = (a // columns) == (b // columns)
         if family == "stretch":
             stiffness[family] = np.where(horizontal, constants.stretch_x, constants.stretch_z)
@@ -123,37 +165,56 @@ def build_garment(cloth: ClothConfig, material: Material, waist_height: float | 
     """Build the garment a scene's ``[cloth]`` describes. ``waist_height`` places a skirt (the
     body's waist when there is one, else ``cloth.waist_height``)."""
     columns, rows = cloth.resolution
-    periodic = cloth.shape == "skirt"
-    if periodic:
-        if columns < 5:
-            raise InputError(f"{source}: cloth.resolution: a skirt needs at least 5 particles "
-                             f"around, got {columns}")
+    periodic = cloth.shape in ("skirt", "disc")
+    if periodic and columns < 5:
+        raise InputError(f"{source}: cloth.resolution: a {cloth.shape} needs at least 5 "
+                         f"particles around, got {columns}")
+    if cloth.shape == "skirt":
         if abs(cloth.hem_radius - cloth.waist_radius) >= cloth.length:
             raise InputError(f"{source}: cloth.length: must exceed |hem_radius − waist_radius| "
                              f"= {abs(cloth.hem_radius - cloth.waist_radius):g} m")
         positions = skirt_positions(cloth, cloth.waist_height if waist_height is None
                                     else waist_height)
-        uvs = np.stack(np.meshgrid(np.arange(columns) / columns,
-                                   1.0 - np.linspace(0, 1, rows)), axis=-1).reshape(-1, 2)
+    elif cloth.shape == "disc":
+        if cloth.hem_radius <= cloth.waist_radius:
+            raise InputError(f"{source}: cloth.hem_radius: a disc's outer radius must exceed "
+                             f"its inner waist_radius {cloth.waist_radius:g} m")
+        positions = disc_positions(cloth)
     else:
         positions = sheet_positions(cloth)
-        uvs = np.stack(np.meshgrid(np.linspace(0, 1, columns),
-                                   1.0 - np.linspace(0, 1, rows)), axis=-1).reshape(-1, 2)
+    u = np.arange(columns) / columns if periodic else np.linspace(0, 1, columns)
+    uvs = np.stack(np.meshgrid(u, 1.0 - np.linspace(0, 1, rows)), axis=-1).reshape(-1, 2)
     all_springs = grid_springs(columns, rows, periodic)
+    families = tuple(cloth.springs) + (("bend",) if cloth.bending == "springs" else ())
     springs = {family: all_springs[family] for family in ("stretch", "shear", "bend")
-               if family in cloth.springs}
+               if family in families}
     triangles = grid_triangles(columns, rows, periodic)
+    warp = warp_directions(cloth, positions)
     return Garment(
         positions=positions,
         uvs=uvs,
         triangles=triangles,
         springs=springs,
         spring_stiffness=family_stiffness(positions, springs, material, columns, rows,
-                                          periodic),
+                                          periodic, warp),
         mass=lumped_mass(positions, triangles, material.density),
-        pinned=pinned_particles(cloth),
+        pinned=pinned_particles(cloth, positions),
         columns=columns,
         rows=rows,
         periodic=periodic,
         damping_time=material.damping,
+        bending_rigidity=(material.bend_stiffness, material.bend_weft),
+        warp=warp,
+        hinges=hinge_stencils(triangles),
     )
+
+
+def warp_directions(cloth: ClothConfig, positions: np.ndarray) -> np.ndarray:
+    """Unit warp direction (N, 3) at every particle: down the rows of a sheet or skirt (the
+    garment's length), along +x on a disc, turned by ``cloth.bias`` towards the rows."""
+    bias = np.radians(cloth.bias)
+    columns, rows = cloth.resolution
+    if cloth.shape == "disc":
+        return np.tile([np.cos(bias), 0.0, np.sin(bias)], (len(positions), 1))
+    across, down = grid_tangents(positions, columns, rows, cloth.shape == "skirt")
+    return np.cos(bias) * down + np.sin(bias) * across

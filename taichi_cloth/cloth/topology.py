@@ -1,7 +1,6 @@
 """Connectivity of a grid cloth, in NumPy: the spring pairs of each family (seed §2.1, Fig. 1),
-the triangles, the lumped particle masses, and the per-particle gather lists (CSR) through which
-every particle sums its own springs and triangles in a fixed order (no atomic adds, so a run is
-bit-reproducible on the CPU)."""
+the triangles, the lumped particle masses, and the bending stencils (hinges) of any triangle
+mesh. The per-particle gather lists over them are in ``gather.py``."""
 
 import numpy as np
 
@@ -55,24 +54,19 @@ def lumped_mass(positions: np.ndarray, triangles: np.ndarray, density: float) ->
     return mass
 
 
-def gather_lists(pairs: np.ndarray, particle_count: int):
-    """CSR lists of what each particle touches: (start (N+1,), item (K,), other (K,)).
-
-    For springs: item = spring index, other = the particle at its other end. Entries of one
-    particle keep the order of ``pairs`` (a stable sort), so sums over them are reproducible.
-    """
-    owner = np.concatenate([pairs[:, 0], pairs[:, 1]])
-    item = np.concatenate([np.arange(len(pairs))] * 2)
-    other = np.concatenate([pairs[:, 1], pairs[:, 0]])
-    order = np.argsort(owner, kind="stable")
-    start = np.searchsorted(owner[order], np.arange(particle_count + 1)).astype(np.int32)
-    return start, item[order].astype(np.int32), other[order].astype(np.int32)
-
-
-def triangle_gather_lists(triangles: np.ndarray, particle_count: int):
-    """CSR lists of the triangles around each particle: (start (N+1,), triangle (K,))."""
-    owner = triangles.ravel()
-    triangle = np.repeat(np.arange(len(triangles)), 3)
-    order = np.argsort(owner, kind="stable")
-    start = np.searchsorted(owner[order], np.arange(particle_count + 1)).astype(np.int32)
-    return start, triangle[order].astype(np.int32)
+def hinge_stencils(triangles: np.ndarray) -> np.ndarray:
+    """The bending stencils of a triangle mesh: for every interior edge (shared by exactly two
+    triangles) its vertices (x0, x1) and the two opposite vertices (x2 of the first triangle,
+    x3 of the second), shape (H, 4), in the order the edges first appear."""
+    first_seen = {}
+    stencils = []
+    for triangle in triangles:
+        for corner in range(3):
+            a, b, opposite = triangle[corner], triangle[(corner + 1) % 3], triangle[(corner + 2) % 3]
+            key = (min(a, b), max(a, b))
+            if key in first_seen:
+                edge_a, edge_b, other = first_seen.pop(key)
+                stencils.append((edge_a, edge_b, other, opposite))
+            else:
+                first_seen[key] = (a, b, opposite)
+    return np.array(stencils, dtype=np.int32).reshape(-1, 4)

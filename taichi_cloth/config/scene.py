@@ -23,7 +23,8 @@ from taichi_cloth.settings import SourceContext, build_table, setting
 
 SCENES_DIR = Path(__file__).resolve().parents[2] / "scenes"
 INTEGRATOR_NAMES = ("euler", "symplectic", "rk4", "implicit")
-SPRING_FAMILIES = ("stretch", "shear", "bend")
+SPRING_FAMILIES = ("stretch", "shear")  # "bend" springs come with cloth.bending = "springs"
+BENDING_MODELS = ("curvature", "springs", "none")
 MESH_FORMATS = ("obj", "ply", "vtu", "xdmf")
 
 
@@ -64,26 +65,47 @@ class MaterialOverrides:
     density: float | None = setting(None, "float", low=0.0, low_inclusive=False, doc="kg/m²")
     stretch_stiffness: float | None = setting(None, "float", low=0.0, low_inclusive=False, doc="N/m")
     shear_stiffness: float | None = setting(None, "float", low=0.0, doc="N/m")
-    bend_stiffness: float | None = setting(None, "float", low=0.0, doc="N·m")
+    bend_stiffness: float | None = setting(None, "float", low=0.0, doc="N·m, warp")
+    bend_stiffness_weft: float | None = setting(None, "float", low=0.0, doc="N·m")
+    stretch_stiffness_weft: float | None = setting(None, "float", low=0.0, low_inclusive=False,
+                                                   doc="N/m")
     damping: float | None = setting(None, "float", low=0.0, doc="Rayleigh damping time β [s]")
     thickness: float | None = setting(None, "float", low=0.0, low_inclusive=False, doc="m")
 
     def resolve(self) -> Material:
-        """The preset with the given values replaced."""
+        """The preset with the given values replaced. A warp value given without its weft value
+        (stretch_stiffness, bend_stiffness) sets both directions: the fabric becomes isotropic
+        in it."""
         changed = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
                    if f.name != "preset" and getattr(self, f.name) is not None}
+        for warp in ("stretch_stiffness", "bend_stiffness"):
+            if warp in changed:
+                changed.setdefault(f"{warp}_weft", None)
         return dataclasses.replace(PRESETS[self.preset], **changed)
 
 
 @dataclass(frozen=True)
 class ClothConfig:
-    shape: str = setting("sheet", "str", choices=("skirt", "sheet"))
+    shape: str = setting("sheet", "str", choices=("skirt", "sheet", "disc"),
+                         doc="disc: a flat circular specimen (Cusick drape), rings from "
+                             "waist_radius to hem_radius at height")
     resolution: tuple = setting([24, 24], "int_list", low=2, high=4096, length=2,
                                 doc="[around, down] for a skirt, [x, z] for a sheet")
     material: MaterialOverrides = setting(MaterialOverrides(), "table", shorthand="preset",
                                           doc="a preset name, or a table of overrides")
-    pin: str = setting("top-edge", "str", choices=("waist", "top-edge", "corners", "none"))
-    springs: tuple = setting(list(SPRING_FAMILIES), "str_list", choices=SPRING_FAMILIES)
+    pin: str = setting("top-edge", "str",
+                       choices=("waist", "top-edge", "corners", "clamp", "none"),
+                       doc="clamp: a disc's particles within clamp_radius of its centre")
+    pin_rows: int = setting(1, "int", low=1, high=4096,
+                            doc="top-edge: rows held (2 clamp the edge's slope too)")
+    clamp_radius: float = setting(0.09, "float", low=0.0, doc="disc, pin = \"clamp\": m")
+    springs: tuple = setting(list(SPRING_FAMILIES), "str_list", choices=SPRING_FAMILIES,
+                             doc="in-plane spring families")
+    bending: str = setting("curvature", "str", choices=BENDING_MODELS,
+                           doc="curvature: the bending effect from the fabric's B (effects/"
+                               "bending.py); springs: the seed's skip-one springs; none")
+    bias: float = setting(0.0, "float", low=-90.0, high=90.0,
+                          doc="degrees the warp is turned from the garment's length (45: bias cut)")
     waist_radius: float = setting(0.17, "float", low=0.0, low_inclusive=False, doc="skirt, m")
     hem_radius: float = setting(0.40, "float", low=0.0, low_inclusive=False, doc="skirt, m")
     length: float = setting(0.55, "float", low=0.0, low_inclusive=False, doc="skirt, m")
@@ -232,7 +254,10 @@ def apply_override(raw: dict, parts: list[str], value: Any) -> None:
     node[parts[-1]] = value
 
 
-def _build_effects(ctx: SourceContext, table: Any) -> dict:
+def _build_effects(ctx: SourceContext, table: Any, bending: str) -> dict:
+    """The declared effects, name → settings, in ``EFFECTS`` order; curvature bending
+    (``cloth.bending = "curvature"``) is declared with its defaults unless [effects.bending]
+    gives its settings (``effects.bending = false`` leaves it out, as ``cloth.bending = "none"``)."""
     if not isinstance(table, dict):
         raise ctx.error("effects", f"expected a table of effects, got {table!r}")
     effects = {}
@@ -248,6 +273,11 @@ def _build_effects(ctx: SourceContext, table: Any) -> dict:
             settings = {}
         effects[name] = build_table(ctx, EFFECT_BY_NAME[name].Settings, settings,
                                     f"effects.{name}")
+    if bending == "curvature" and table.get("bending") is not False:
+        effects.setdefault("bending", EFFECT_BY_NAME["bending"].Settings())
+    elif "bending" in effects:
+        raise ctx.error("effects.bending", f"needs cloth.bending = \"curvature\", got "
+                                           f"{bending!r}")
     return {name: effects[name] for name in EFFECT_BY_NAME if name in effects}
 
 
@@ -277,6 +307,11 @@ def load_scene(name_or_path: str, overrides: tuple[str, ...] = ()) -> Scene:
     info = build_table(ctx, SceneInfo, raw.get("scene", {}), "scene")
     if not info.name:
         info = dataclasses.replace(info, name=path.stem)
+    raw_springs = raw.get("cloth", {}).get("springs", []) if isinstance(raw.get("cloth"), dict) \
+        else []
+    if isinstance(raw_springs, list) and "bend" in raw_springs:
+        raise ctx.error("cloth.springs", "skip-one \"bend\" springs are chosen with "
+                                         "cloth.bending = \"springs\"")
     cloth = build_table(ctx, ClothConfig, raw.get("cloth", {}), "cloth")
     body = build_table(ctx, BodyConfig, raw["body"], "body") if "body" in raw else None
     if cloth.pin == "waist" and cloth.shape != "skirt":
@@ -291,7 +326,7 @@ def load_scene(name_or_path: str, overrides: tuple[str, ...] = ()) -> Scene:
         scene=info,
         simulation=build_table(ctx, SimulationConfig, raw.get("simulation", {}), "simulation"),
         cloth=cloth,
-        effects=_build_effects(ctx, raw.get("effects", {})),
+        effects=_build_effects(ctx, raw.get("effects", {}), cloth.bending),
         body=body,
         render=build_table(ctx, RenderConfig, raw.get("render", {}), "render"),
         output=build_table(ctx, OutputConfig, raw.get("output", {}), "output"),

@@ -3,6 +3,7 @@ effect declares). ``EFFECTS`` is the one place they are registered: its order is
 which forces are summed and effects are listed in ``stats.json``."""
 
 from taichi_cloth.effects.base import Effect, EffectContext
+from taichi_cloth.effects.bending import Bending
 from taichi_cloth.effects.collision import CapsuleContact
 from taichi_cloth.effects.damping import Damping
 from taichi_cloth.effects.drag import Drag
@@ -10,7 +11,7 @@ from taichi_cloth.effects.gravity import Gravity
 from taichi_cloth.effects.ground import GroundContact
 from taichi_cloth.effects.wind import Wind
 
-EFFECTS = (Gravity, Damping, Drag, Wind, CapsuleContact, GroundContact)
+EFFECTS = (Gravity, Damping, Bending, Drag, Wind, CapsuleContact, GroundContact)
 EFFECT_BY_NAME = {effect.name: effect for effect in EFFECTS}
 
 

@@ -17,11 +17,16 @@ Genesis' ``force_fields.py``). What an effect declares:
   the capsules); nothing by default.
 - ``has_jacobian`` and ``local_jacobian(model, x, v, i_p, t, definite)``: its per-particle blocks
   (∂f_i/∂x_i, ∂f_i/∂v_i) for the implicit solver, or ``has_jacobian = False`` when it has none
-  (a constant force).
+  (a constant force). An effect that couples particles (bending) sets ``has_coupled_jacobian``
+  and gives ``coupled_products(model, u, i_p)`` (the rows i of (∂f/∂x)·u and (∂f/∂v)·u),
+  ``coupled_diagonal(model, i_p)`` (their diagonals, for the preconditioner), and for
+  ``dt = "auto"`` ``rest_stiffness_product(u)`` and ``stiffness_row_sums(n)`` (host NumPy).
 - ``uniform_acceleration``: (a_x, a_y, a_z) [m/s²] when its force is m·a for every free particle
   (gravity), which lets a grid cloth step in SIMD lanes; None otherwise.
 - ``stability_modes()``: the (k̂ [1/s²], ζ) of each stiff mode it adds, for ``dt = "auto"``.
-- ``potential_energy(x, mass)`` [J] and ``max_penetration(x)`` [m]: its per-frame metrics.
+- ``potential_energy(x, mass)`` [J], ``max_penetration(x)`` [m] and ``frame_metrics(x)`` (more
+  per-frame values for ``stats.json``, by name): its metrics.
+- ``upload()``: fill its fields once every effect has allocated its own (one SNode tree).
 - ``post_step``: an object with a ``@ti.func apply(state, t)`` to run after every substep (the
   contact projection), or None.
 
@@ -56,6 +61,7 @@ class Effect:
     Settings = None
     has_force = True
     has_jacobian = False
+    has_coupled_jacobian = False
     needs_body = False  # the scene must have a [body] section
     uniform_acceleration = None
     post_step = None
@@ -67,6 +73,9 @@ class Effect:
     def model_options(settings) -> dict:
         """Keyword arguments this effect adds to ``Model`` (before it exists): none here."""
         return {}
+
+    def upload(self) -> None:
+        """Fill the fields allocated in ``__init__``: none here."""
 
     @ti.func
     def prepare(self, t):
@@ -83,3 +92,7 @@ class Effect:
     def max_penetration(self, x: np.ndarray) -> float:
         """Deepest penetration [m] of positions x at the end of the frame: none here."""
         return 0.0
+
+    def frame_metrics(self, x: np.ndarray) -> dict:
+        """Further per-frame metrics of positions x, by name: none here."""
+        return {}

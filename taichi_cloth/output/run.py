@@ -100,7 +100,7 @@ def run_scene(scene: Scene, frame_count: int, directory: Path, quiet: bool,
         simulation.restore(checkpoint.snapshot)
         first_frame = checkpoint.next_frame
         previous = json.loads((directory / "stats.json").read_text())["per_frame"]
-        record.frames = [FrameMetrics(**frame) for frame in previous[:first_frame]]
+        record.frames = [FrameMetrics.from_dict(frame) for frame in previous[:first_frame]]
         record.retries = checkpoint.retries
         record.cg_iterations = checkpoint.cg_iterations.tolist()
         if first_frame >= frame_count:

@@ -40,6 +40,7 @@ class Forces:
         self.effects = effects
         self.force_effects = [e for e in effects if e.has_force]
         self.jacobian_effects = [e for e in effects if e.has_jacobian]
+        self.coupled_effects = [e for e in effects if e.has_coupled_jacobian]
         self.packed = packed
         self.has_packed = packed is not None
 
@@ -138,6 +139,10 @@ class Forces:
                 model, x, v, i_p, t, definite)
             stiffness_product += stiffness_block @ u[i_p]
             damping_product += damping_block @ u[i_p]
+        for e in ti.static(range(len(self.coupled_effects))):
+            stiffness, damping = self.coupled_effects[e].coupled_products(model, u, i_p)
+            stiffness_product += stiffness
+            damping_product += damping
         return stiffness_product, damping_product
 
     @ti.kernel

@@ -2,7 +2,7 @@
 stretch springs' strain, the elastic energy, and the per-frame and per-run records that become
 ``stats.json`` (docs/physics.md, "Metrics")."""
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
@@ -34,9 +34,19 @@ class FrameMetrics:
     max_penetration: float
     center_of_mass: list
     cg_iterations: float | None = None  # implicit integrator: mean CG iterations per step
+    extra: dict = field(default_factory=dict)  # the effects' own metrics (bending_energy [J])
 
     def as_dict(self) -> dict:
-        return {key: value for key, value in self.__dict__.items() if value is not None}
+        values = {key: value for key, value in self.__dict__.items()
+                  if value is not None and key != "extra"}
+        return {**values, **self.extra}
+
+    @classmethod
+    def from_dict(cls, document: dict) -> "FrameMetrics":
+        """The inverse of ``as_dict`` (a resumed run reads its finished frames back)."""
+        names = {f.name for f in fields(cls)} - {"extra"}
+        return cls(**{key: value for key, value in document.items() if key in names},
+                   extra={key: value for key, value in document.items() if key not in names})
 
 
 @dataclass

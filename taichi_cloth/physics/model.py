@@ -19,7 +19,7 @@ import numpy as np
 import taichi as ti
 
 from taichi_cloth.cloth.garment import Garment
-from taichi_cloth.cloth.topology import gather_lists, triangle_gather_lists
+from taichi_cloth.gather import gather_lists, triangle_gather_lists
 from taichi_cloth.physics.packed_grid import grid_stencil
 
 FAMILY_ORDER = ("stretch", "shear", "bend")

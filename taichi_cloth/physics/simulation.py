@@ -74,6 +74,8 @@ class Simulation:
             self.control = Control(self.garment.pinned, self.garment.positions, self.model.real)
         self.effects = build_effects(scene.effects, EffectContext(self.model, self.control))
         self.control.upload()
+        for effect in self.effects:
+            effect.upload()
         integrator_class = INTEGRATORS[scene.simulation.integrator]
         self.forces = Forces(self.model, self.effects,
                              packed_grid_for(self.model, integrator_class.packs_springs))
@@ -98,7 +100,8 @@ class Simulation:
         return choose_time_step(
             scene.simulation.dt, self.frame_duration, scene.simulation.integrator,
             garment.positions, model.host_spring_ends, model.host_stiffness, garment.mass,
-            ~garment.pinned, model.dashpot_time or 0.0, contact_modes, scene.simulation.safety)
+            ~garment.pinned, model.dashpot_time or 0.0, contact_modes, scene.simulation.safety,
+            self.forces.coupled_effects)
 
     def set_time_step(self, dt: float, substeps_per_frame: int) -> None:
         """Step with dt [s], ``substeps_per_frame`` of them per frame (dt · substeps = the frame's
@@ -156,11 +159,14 @@ class Simulation:
         potential = sum(effect.potential_energy(x, mass) for effect in self.effects) \
             + spring_energy(self.model, x)
         penetration = max((effect.max_penetration(x) for effect in self.effects), default=0.0)
+        extra = {name: value for effect in self.effects
+                 for name, value in effect.frame_metrics(x).items()}
         return FrameMetrics(
             frame=frame, t=self.frame_end_time(frame), kinetic_energy=kinetic,
             potential_energy=potential, max_strain=float(np.max(strain)),
             max_penetration=penetration,
-            center_of_mass=[float(c) for c in np.sum(mass[:, None] * x, 0) / np.sum(mass)])
+            center_of_mass=[float(c) for c in np.sum(mass[:, None] * x, 0) / np.sum(mass)],
+            extra=extra)
 
     def guarded_frame(self, frame: int, record: RunRecord) -> FrameMetrics:
         """Advance ``frame`` and check it. A bad frame is rolled back and retried with the step

@@ -49,21 +49,29 @@ def stiffness_product(ends, stiffness, directions, u):
     return product
 
 
-def highest_frequency(positions, ends, stiffness, mass, free, iterations: int = 60) -> float:
+def highest_frequency(positions, ends, stiffness, mass, free, iterations: int = 60,
+                      coupled=()) -> float:
     """ω_max [rad/s]: power iteration on M⁻¹K restricted to free particles, capped by the
-    Gershgorin bound and never below the iteration's own estimate."""
+    Gershgorin bound and never below the iteration's own estimate. ``coupled``: effects whose
+    Hessian adds to K (``rest_stiffness_product``, ``stiffness_row_sums``: bending)."""
     directions = positions[ends[:, 1]] - positions[ends[:, 0]]
     directions /= np.linalg.norm(directions, axis=1, keepdims=True)
     row_sum = np.zeros(len(mass))
     np.add.at(row_sum, ends[:, 0], stiffness)
     np.add.at(row_sum, ends[:, 1], stiffness)
-    gershgorin = float(np.max(np.where(free, 2.0 * row_sum / mass, 0.0)))
+    row_sum *= 2.0
+    for effect in coupled:
+        row_sum += effect.stiffness_row_sums(len(mass))
+    gershgorin = float(np.max(np.where(free, row_sum / mass, 0.0)))
     rng = np.random.default_rng(0)
     u = rng.standard_normal(positions.shape) * free[:, None]
     estimate = 0.0
     for _ in range(iterations):
         u /= np.linalg.norm(u)
-        w = stiffness_product(ends, stiffness, directions, u) / mass[:, None] * free[:, None]
+        product = stiffness_product(ends, stiffness, directions, u)
+        for effect in coupled:
+            product += effect.rest_stiffness_product(u)
+        w = product / mass[:, None] * free[:, None]
         estimate = float(np.sum(u * w))
         u = w
     # The Rayleigh quotient approaches λ_max from below; 10 % headroom covers the rest.
@@ -78,12 +86,14 @@ def fixed_time_step(requested: float, frame_duration: float) -> TimeStep:
 
 
 def choose_time_step(requested, frame_duration: float, integrator: str, positions, ends, stiffness,
-                     mass, free, damping_time: float, contact_modes, safety: float) -> TimeStep:
+                     mass, free, damping_time: float, contact_modes, safety: float,
+                     coupled=()) -> TimeStep:
     """The substep for a frame of ``frame_duration`` [s]; ``requested`` is seconds or "auto".
-    contact_modes: (k̂ [1/s²], ζ) of each declared contact (collision, ground)."""
+    contact_modes: (k̂ [1/s²], ζ) of each declared contact (collision, ground); coupled: the
+    effects whose Hessian adds to the springs' (``highest_frequency``)."""
     if requested != "auto":
         return fixed_time_step(requested, frame_duration)
-    omega_spring = highest_frequency(positions, ends, stiffness, mass, free)
+    omega_spring = highest_frequency(positions, ends, stiffness, mass, free, coupled=coupled)
     contact_stiffness = max((k for k, _ in contact_modes), default=0.0)
     omega_max = math.sqrt(omega_spring ** 2 + contact_stiffness)
     if integrator == "implicit":

@@ -22,7 +22,8 @@ import taichi as ti
 
 from taichi_cloth.body.dancer import DISPLAY_CAPSULE_NAMES
 from taichi_cloth.cloth.garment import Garment
-from taichi_cloth.cloth.topology import grid_triangles, triangle_gather_lists
+from taichi_cloth.cloth.topology import grid_triangles
+from taichi_cloth.gather import triangle_gather_lists
 
 CAPSULE_SEGMENTS = 20  # vertices around a capsule
 CAPSULE_RINGS = 7  # latitude rings per hemisphere (pole to equator)

@@ -49,10 +49,11 @@ IMPLICIT_FRAME_DT_S = 1.0 / 60.0
 
 
 def reference_cloth(size: int) -> ClothConfig:
-    """The reference sheet of size × size particles."""
+    """The reference sheet of size × size particles (stretch, shear and skip-one bend springs:
+    the peers' mass-spring cloth)."""
     side = REFERENCE_SPACING_M * (size - 1)
     return ClothConfig(shape="sheet", resolution=(size, size), size=(side, side), height=1.0,
-                       orientation="horizontal", pin="top-edge")
+                       orientation="horizontal", pin="top-edge", bending="springs")
 
 
 def reference_model(size: int) -> Model:

@@ -42,7 +42,8 @@ def finite(value):
 class BlockConjugateGradient:
     """The solver half of ``BackwardEuler``: its scratch fields (``_allocate_solver``), the solve
     (``_solve``) and the product with A (``_operator``). The integrator fills ``rhs``,
-    ``delta_v`` (the start), ``inverse_diagonal``, ``spring_block`` and ``local_block``."""
+    ``delta_v`` (the start), ``inverse_diagonal``, ``spring_block``, ``local_block`` and
+    ``coupled_step`` (the coupled effects' products are taken at it)."""
 
     def _allocate_solver(self, particle_count: int, gather_count: int, real,
                          has_local_blocks: bool) -> None:
@@ -58,6 +59,7 @@ class BlockConjugateGradient:
                                             shape=gather_count)
         if has_local_blocks:
             self.local_block = ti.Matrix.field(3, 3, real, n)
+        self.coupled_step = ti.field(real, ())  # h [s] of the coupled effects' blocks
         self.block_count = math.ceil(n / DOT_BLOCK)
         self.curvature_partial = ti.field(ti.f64, self.block_count)
         self.residual_partial = ti.field(ti.f64, self.block_count)
@@ -202,6 +204,11 @@ class BlockConjugateGradient:
             n = self.spring_block[k].direction
             result += self.spring_block[k].axial * n.dot(relative) * n \
                 + self.spring_block[k].isotropic * relative
+        coupled = self.forces.coupled_effects
+        for e in ti.static(range(len(coupled))):
+            h = self.coupled_step[None]
+            stiffness, damping = coupled[e].coupled_products(model, u, i_p)
+            result -= h * damping + h * h * stiffness
         return result
 
     @ti.func

@@ -23,7 +23,11 @@ direction n = (x_j − x_i)/|x_j − x_i| and the two scalars of the spring's bl
 its own block L_i = m_i·I − h·D_loc − h²·K_loc from the effects with ``has_jacobian``
 (contact, drag, wind; just m_i·I without them). A product then gathers in the fixed CSR order:
 
-    (A·u)_i = L_i·u_i + Σ_k [a_k·(n_k·(u_i − u_j))·n_k + b_k·(u_i − u_j)]      (A in kg).
+    (A·u)_i = L_i·u_i + Σ_k [a_k·(n_k·(u_i − u_j))·n_k + b_k·(u_i − u_j)]
+              − Σ_coupled [h·(D·u)_i + h²·(K·u)_i]                             (A in kg),
+
+the last sum over the effects with ``has_coupled_jacobian`` (bending: constant blocks, taken
+from the effect at the stored step ``coupled_step``).
 
 The system is solved by preconditioned conjugate gradients (``conjugate_gradient.py``).
 
@@ -150,6 +154,7 @@ class BackwardEuler(BlockConjugateGradient, Integrator):
         time = ti.cast(t + dt, model.real)  # backward Euler: forces at the step's end time
         w_last, w_older = ti.cast(last_weight, model.real), ti.cast(older_weight, model.real)
         forces.prepare(candidate.x, candidate.v, t + dt)
+        self.coupled_step[None] = h
         for i_p in candidate.x:
             force = forces.particle_force(candidate.x, candidate.v, i_p, time)
             self.rhs[i_p] = h * force \
@@ -189,6 +194,10 @@ class BackwardEuler(BlockConjugateGradient, Integrator):
                 local -= h * damping_block + h * h * stiffness_block
             self.local_block[i_p] = local
             own_diagonal = ti.Vector([local[c, c] for c in ti.static(range(3))])
+        coupled = self.forces.coupled_effects
+        for e in ti.static(range(len(coupled))):
+            stiffness, damping = coupled[e].coupled_diagonal(model, i_p)
+            own_diagonal -= h * damping + h * h * stiffness
         self.inverse_diagonal[i_p] = 1.0 / (spring_diagonal + own_diagonal)
 
     @ti.kernel

@@ -1,0 +1,37 @@
+"""Gather lists: for every particle, the CSR list of the items it belongs to (springs, triangles,
+bending stencils). Every per-particle force sums over its own list in a fixed order, never
+scattering with atomic adds, so a run is bit-reproducible on the CPU."""
+
+import numpy as np
+
+
+def gather_lists(pairs: np.ndarray, particle_count: int):
+    """CSR lists of what each particle touches: (start (N+1,), item (K,), other (K,)).
+
+    For springs: item = spring index, other = the particle at its other end. Entries of one
+    particle keep the order of ``pairs`` (a stable sort), so sums over them are reproducible.
+    """
+    owner = np.concatenate([pairs[:, 0], pairs[:, 1]])
+    item = np.concatenate([np.arange(len(pairs))] * 2)
+    other = np.concatenate([pairs[:, 1], pairs[:, 0]])
+    order = np.argsort(owner, kind="stable")
+    start = np.searchsorted(owner[order], np.arange(particle_count + 1)).astype(np.int32)
+    return start, item[order].astype(np.int32), other[order].astype(np.int32)
+
+
+def incidence_lists(items: np.ndarray, particle_count: int):
+    """CSR lists of the items (rows of ``items`` (M, k), each k particle indices) around each
+    particle: (start (N+1,), item (K,), slot (K,)), slot the particle's column in its item.
+    Entries of one particle keep item order (a stable sort), so sums over them are reproducible."""
+    owner = items.ravel()
+    item = np.repeat(np.arange(len(items)), items.shape[1])
+    slot = np.tile(np.arange(items.shape[1]), len(items))
+    order = np.argsort(owner, kind="stable")
+    start = np.searchsorted(owner[order], np.arange(particle_count + 1)).astype(np.int32)
+    return start, item[order].astype(np.int32), slot[order].astype(np.int32)
+
+
+def triangle_gather_lists(triangles: np.ndarray, particle_count: int):
+    """CSR lists of the triangles around each particle: (start (N+1,), triangle (K,))."""
+    start, triangle, _ = incidence_lists(triangles, particle_count)
+    return start, triangle
