@@ -34,7 +34,7 @@ bench: setup
 	$(PY) -m taichi_cloth bench $(ARGS)
 
 test: setup
-	$(PY) -m pytest -q tests
+	$(PY) -m pytest -q -n 2 tests
 
 clean:
 	find output -mindepth 1 ! -name .gitkeep -exec rm -rf {} +

@@ -123,6 +123,19 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--arch", choices=ARCH_NAMES, default="cpu",
                        help="Taichi backend (default cpu)")
     bench.add_argument("--quiet", action="store_true", help="no progress lines")
+    fabric = commands.add_parser(
+        "fabric-test", help="the virtual textile lab: the cantilever bending test (ASTM D1388) "
+                            "or the Cusick drape test on a fabric (docs/fabric-tests.md)")
+    fabric.add_argument("test", choices=("cantilever", "drape"))
+    fabric.add_argument("--material", default="cotton", metavar="LIST",
+                        help="comma list of fabric presets or scene files whose "
+                             "[cloth.material] to test (default cotton)")
+    fabric.add_argument("--resolution", default="0.5", metavar="LIST",
+                        help="particle spacing as a fraction of the bending length, a comma "
+                             "list (default 0.5)")
+    add_common_arguments(fabric, "output folder (default: output/fabric-test/<test>)",
+                         "override a dotted key of the lab scene (scenes/lab/<test>.toml), "
+                         "e.g. --set cloth.material.bend_stiffness=2e-5 (repeatable)")
     bench.add_argument("--profile", action="store_true",
                        help="also print Taichi's kernel profiler table (time per kernel; the "
                             "profiler's own timing slows the rates, so read them from a run "
@@ -219,6 +232,11 @@ def main(argv=None) -> int:
             from taichi_cloth.studies.bench import bench_command
             return bench_command(args.sizes, args.integrators, args.scene, args.json,
                                  args.seconds, args.repeats, args.arch, args.quiet, args.profile)
+        if args.command == "fabric-test":
+            from taichi_cloth.studies.fabric_lab import fabric_test_command
+            arch = [f"simulation.arch={args.arch}"] if args.arch else []
+            return fabric_test_command(args.test, args.material, args.resolution,
+                                       args.overrides + arch, args.out, args.quiet)
         if args.command == "scenes":
             return list_scenes()
         if args.command == "materials":

@@ -1,0 +1,157 @@
+"""The Cusick drape test (ISO 9073-9, BS 5058; Cusick, "The dependence of fabric drape on
+bending and shear stiffness", J. Text. Inst. 1965) on the simulated fabric.
+
+A circular specimen of 30 cm diameter is clamped between two discs of 18 cm (the lab scene pins
+every particle within the clamp radius: both discs are that size, so the clamped area is held flat
+and nothing else touches the support) and hangs around them under its own weight. At rest, the
+area of its shadow on the horizontal plane gives the drape coefficient
+
+    DC = (A_shadow − A_disc) / (A_specimen − A_disc),
+
+between 0 (hanging straight down) and 1 (staying flat); stiffer fabrics (a longer bending length)
+drape less. The folds (nodes) are the outward bulges of the hem: the peaks of its radius around
+the centre. The specimen starts flat with a small deterministic ripple, so that it can buckle
+into folds, settles dynamically (backward Euler at the lab's small step with kinetic damping: a
+dynamic path finds a stable drape, where Newton steps alone could stop on the unstable
+axisymmetric cone) and is then brought to rest by Newton steps (``fabric_lab.settle``).
+"""
+
+import dataclasses
+import math
+
+import numpy as np
+
+from taichi_cloth.physics.metrics import RunRecord
+from taichi_cloth.studies.fabric_lab import lab_simulation, settle
+
+SPECIMEN_RADIUS = 0.15  # m
+DISC_RADIUS = 0.09  # m
+CENTRE_HOLE = 0.01  # m: the mesh's innermost ring (clamped like the rest of the centre)
+SHADOW_PIXEL = 5e-4  # m: raster of the shadow area
+RIPPLE = 2e-4  # m: the start's vertical ripple
+DYNAMIC_STEP = 1.0 / 60.0  # s
+DYNAMIC_STEPS = 600  # at most 10 s of falling, with kinetic damping ...
+DYNAMIC_REST_SPEED = 2e-4  # m/s ... until no particle moves faster after a step
+MOVE_TOLERANCE = 1e-7  # m per Newton step: at rest (the drape's area is settled long before)
+RESIDUAL_TOLERANCE = 1e-3  # unbalanced force over a particle's weight
+NODE_PROMINENCE = 0.1  # of the hem's radius range: a smaller bump is not a fold
+
+
+def disc_overrides(spacing: float) -> tuple[str, ...]:
+    """The lab scene's specimen with particles about ``spacing`` [m] apart at the hem."""
+    around = 4 * max(4, math.ceil(2 * math.pi * SPECIMEN_RADIUS / spacing / 4))
+    rings = max(4, math.ceil((SPECIMEN_RADIUS - CENTRE_HOLE) / spacing)) + 1
+    return (f"cloth.resolution=[{around}, {rings}]", f"cloth.waist_radius={CENTRE_HOLE!r}",
+            f"cloth.hem_radius={SPECIMEN_RADIUS!r}", f"cloth.clamp_radius={DISC_RADIUS!r}")
+
+
+def shadow_area(positions: np.ndarray, triangles: np.ndarray) -> float:
+    """Area [m²] of the union of the triangles projected on the x–z plane, on a raster of
+    ``SHADOW_PIXEL``."""
+    extent = SPECIMEN_RADIUS * 1.05
+    count = int(2 * extent / SHADOW_PIXEL)
+    covered = np.zeros((count, count), dtype=bool)
+    flat = positions[:, [0, 2]]
+    for a, b, c in flat[triangles]:
+        low = np.floor((np.minimum(np.minimum(a, b), c) + extent) / SHADOW_PIXEL).astype(int)
+        high = np.ceil((np.maximum(np.maximum(a, b), c) + extent) / SHADOW_PIXEL).astype(int)
+        low, high = np.clip(low, 0, count), np.clip(high, 0, count)
+        if np.any(high <= low):
+            continue
+        xs = (np.arange(low[0], high[0]) + 0.5) * SHADOW_PIXEL - extent
+        zs = (np.arange(low[1], high[1]) + 0.5) * SHADOW_PIXEL - extent
+        px, pz = np.meshgrid(xs, zs, indexing="ij")
+        d1 = (b[0] - a[0]) * (pz - a[1]) - (b[1] - a[1]) * (px - a[0])
+        d2 = (c[0] - b[0]) * (pz - b[1]) - (c[1] - b[1]) * (px - b[0])
+        d3 = (a[0] - c[0]) * (pz - c[1]) - (a[1] - c[1]) * (px - c[0])
+        inside = ((d1 >= 0) & (d2 >= 0) & (d3 >= 0)) | ((d1 <= 0) & (d2 <= 0) & (d3 <= 0))
+        covered[low[0]:high[0], low[1]:high[1]] |= inside
+    return float(covered.sum()) * SHADOW_PIXEL ** 2
+
+
+def drape_coefficient(shadow: float) -> float:
+    disc = math.pi * DISC_RADIUS ** 2
+    return (shadow - disc) / (math.pi * SPECIMEN_RADIUS ** 2 - disc)
+
+
+def hem_profile(positions: np.ndarray, columns: int) -> tuple[np.ndarray, np.ndarray]:
+    """(angle [rad], horizontal radius [m]) of the hem particles (the last ring), by angle."""
+    hem = positions[-columns:]
+    angle = np.arctan2(hem[:, 2], hem[:, 0])
+    order = np.argsort(angle)
+    return angle[order], np.hypot(hem[:, 0], hem[:, 2])[order]
+
+
+def node_count(radius: np.ndarray) -> int:
+    """Folds: peaks of the hem's radius around the centre (periodic) that stand out from both
+    neighbouring valleys by ``NODE_PROMINENCE`` of its range."""
+    span = float(radius.max() - radius.min())
+    if span <= 0:
+        return 0
+    start = int(np.argmin(radius))
+    ring = np.roll(radius, -start)  # starts and ends at the lowest valley
+    nodes, valley, peak = 0, ring[0], ring[0]
+    rising = True
+    for value in np.append(ring[1:], ring[0]):
+        if rising:
+            peak = max(peak, value)
+            if peak - value > NODE_PROMINENCE * span and peak - valley > NODE_PROMINENCE * span:
+                nodes += 1
+                rising, valley = False, value
+        else:
+            valley = min(valley, value)
+            if value - valley > NODE_PROMINENCE * span:
+                rising, peak = True, value
+    return nodes
+
+
+def settle_dynamically(simulation) -> None:
+    """From the rippled flat start, backward Euler steps with kinetic damping (velocities zeroed
+    whenever the kinetic energy passes a peak) until every particle is slower than
+    ``DYNAMIC_REST_SPEED`` after a step, at most ``DYNAMIC_STEPS``."""
+    snapshot = simulation.snapshot()
+    radius = np.hypot(snapshot.positions[:, 0], snapshot.positions[:, 2])
+    angle = np.arctan2(snapshot.positions[:, 2], snapshot.positions[:, 0])
+    ripple = RIPPLE * np.sin(7 * angle) * np.clip((radius - DISC_RADIUS) / 0.01, 0, 1)
+    start = snapshot.positions.copy()
+    start[:, 1] += ripple
+    simulation.restore(dataclasses.replace(snapshot, positions=start))
+    simulation.set_time_step(DYNAMIC_STEP, 1)
+    record, mass, previous = RunRecord(), simulation.model.host_mass, math.inf
+    for _ in range(DYNAMIC_STEPS):
+        simulation.advance_frame(0, record)
+        current = simulation.snapshot()
+        speed_sq = np.sum(current.velocities ** 2, axis=1)
+        if np.max(speed_sq) < DYNAMIC_REST_SPEED ** 2:
+            break
+        kinetic = 0.5 * float(np.sum(mass * speed_sq))
+        if kinetic < previous:
+            simulation.restore(dataclasses.replace(
+                current, velocities=np.zeros_like(current.velocities)))
+            kinetic = 0.0
+        previous = kinetic
+    simulation.set_time_step(snapshot.dt, snapshot.substeps_per_frame)
+
+
+def drape(material: tuple[str, ...], spacing_fraction: float,
+          extra: tuple[str, ...] = ()) -> dict:
+    """The test at a hem spacing of ``spacing_fraction`` × the fabric's mean bending length:
+    a result row (areas in m²)."""
+    probe = lab_simulation("drape", material + extra)
+    scene_material = probe.scene.material
+    bending_length = float(np.mean(scene_material.bending_length))
+    spacing = spacing_fraction * bending_length
+    simulation = lab_simulation("drape", material + extra + disc_overrides(spacing))
+    settle_dynamically(simulation)
+    settled = settle(simulation, MOVE_TOLERANCE, RESIDUAL_TOLERANCE)
+    shadow = shadow_area(settled.positions, simulation.garment.triangles)
+    angle, radius = hem_profile(settled.positions, simulation.garment.columns)
+    return {
+        "test": "drape", "material": scene_material.name, "direction": "-",
+        "spacing_m": spacing, "particles": simulation.model.particle_count,
+        "bending_length_m": bending_length, "shadow_area_m2": shadow,
+        "drape_coefficient": drape_coefficient(shadow), "nodes": node_count(radius),
+        "settle_steps": settled.steps, "residual": settled.residual,
+        "positions": settled.positions, "triangles": simulation.garment.triangles,
+        "hem_angle": angle, "hem_radius": radius,
+    }

@@ -1,0 +1,118 @@
+"""The virtual textile lab (studies/fabric_lab.py, cantilever.py, drape.py) against the textile
+closed forms: the cantilever's measured bending length c = l·(cos(θ/2)/(8·tan θ))^(1/3) within
+10 % of (B/(ρ_A·g))^(1/3) at every resolution and in both directions, warp and weft in the right
+order; the drape coefficient inside (0, 1), ordering the fabrics by bending length, stable under
+refinement; the shadow area and fold count on shapes whose answer is known; the command's files.
+The full table for every preset at two resolutions is docs/fabric-tests.md."""
+
+import math
+
+import numpy as np
+import pytest
+
+from taichi_cloth.cli import main
+from taichi_cloth.config.materials import PRESETS
+from taichi_cloth.studies.cantilever import cantilever, peirce_factor
+from taichi_cloth.studies.drape import (DISC_RADIUS, SPECIMEN_RADIUS, drape, drape_coefficient,
+                                        node_count, shadow_area)
+
+
+def test_peirce_factor_is_half_at_the_standard_angle():
+    assert peirce_factor(math.radians(41.5)) == pytest.approx(0.509, abs=5e-4)
+
+
+@pytest.mark.parametrize("material, direction, fraction", [
+    ("cotton", "warp", 0.5), ("cotton", "warp", 0.25), ("cotton", "warp", 0.125),
+    ("cotton", "weft", 0.5), ("silk", "warp", 0.5), ("denim", "weft", 0.5),
+])
+def test_cantilever_measures_the_bending_length_of_b(material, direction, fraction):
+    row = cantilever((f"cloth.material={material}",), direction, fraction)
+    assert abs(row["length_error"]) < 0.10
+    assert abs(row["tip_angle_deg"] - 41.5) < 0.5  # the overhang was searched to the line
+    assert row["residual"] < 1e-4  # at rest: no particle carries 1e-4 of its weight unbalanced
+
+
+def test_a_material_set_on_the_command_line_is_measured_too():
+    """A fabric defined with --set (B isotropic 4e-5 N·m on 200 g/m²)."""
+    row = cantilever(("cloth.material.bend_stiffness=4e-5", "cloth.material.density=0.2"),
+                     "warp", 0.5)
+    expected = (4e-5 / (0.2 * 9.81)) ** (1 / 3)
+    assert row["expected_bending_length_m"] == pytest.approx(expected)
+    assert row["bending_length_m"] == pytest.approx(expected, rel=0.10)
+
+
+def test_warp_and_weft_order_follows_their_rigidity():
+    cotton = PRESETS["cotton"]
+    assert cotton.bend_stiffness > cotton.bend_weft
+    warp = cantilever(("cloth.material=cotton",), "warp", 0.5)
+    weft = cantilever(("cloth.material=cotton",), "weft", 0.5)
+    assert warp["bending_length_m"] > 1.05 * weft["bending_length_m"]
+
+
+def test_shadow_area_of_known_shapes():
+    """A flat disc of the specimen's radius shades its area; a flat annulus outside the disc's
+    radius as well (to the raster's resolution)."""
+    around, rings = 64, 8
+    angle = 2 * np.pi * np.arange(around) / around
+    radius = np.linspace(0.0, SPECIMEN_RADIUS, rings)
+    points = np.stack([np.outer(radius, np.cos(angle)), np.zeros((rings, around)),
+                       np.outer(radius, np.sin(angle))], axis=-1).reshape(-1, 3)
+    triangles = []
+    for ring in range(rings - 1):
+        for k in range(around):
+            a, b = ring * around + k, ring * around + (k + 1) % around
+            triangles += [(a, b, a + around), (b, b + around, a + around)]
+    polygon_area = 0.5 * around * SPECIMEN_RADIUS ** 2 * np.sin(2 * np.pi / around)
+    area = shadow_area(points, np.array(triangles))
+    assert area == pytest.approx(polygon_area, rel=5e-3)
+    assert drape_coefficient(math.pi * DISC_RADIUS ** 2) == 0.0
+    assert drape_coefficient(math.pi * SPECIMEN_RADIUS ** 2) == pytest.approx(1.0)
+
+
+def test_node_count_counts_the_bulges_of_the_hem():
+    angle = np.linspace(0, 2 * np.pi, 240, endpoint=False)
+    for folds in (4, 6, 9):
+        radius = 0.12 + 0.01 * np.cos(folds * angle + 0.3) + 0.0005 * np.sin(37 * angle)
+        assert node_count(radius) == folds
+    assert node_count(np.full(50, 0.1)) == 0
+
+
+@pytest.fixture(scope="module")
+def drapes():
+    """Silk and denim at the coarse spacing (one bending length), and denim at 0.7 of it."""
+    return {(material, fraction): drape((f"cloth.material={material}",), fraction)
+            for material, fraction in (("silk", 1.0), ("denim", 1.0), ("denim", 0.7))}
+
+
+def test_drape_coefficients_order_the_fabrics_and_stay_under_refinement(drapes):
+    silk, denim = drapes[("silk", 1.0)], drapes[("denim", 1.0)]
+    for row in drapes.values():
+        assert 0.0 < row["drape_coefficient"] < 1.0
+        assert row["nodes"] >= 3
+        assert row["residual"] < 1e-3
+    assert silk["bending_length_m"] < denim["bending_length_m"]
+    assert silk["drape_coefficient"] < denim["drape_coefficient"]
+    assert abs(drapes[("denim", 0.7)]["drape_coefficient"] - denim["drape_coefficient"]) < 0.05
+
+
+def test_fabric_test_command_writes_table_csv_and_pictures(tmp_path, capsys):
+    assert main(["fabric-test", "cantilever", "--material", "silk", "--resolution", "0.5",
+                 "--out", str(tmp_path), "--quiet"]) == 0
+    printed = capsys.readouterr().out
+    assert "silk" in printed and "c from B" in printed
+    lines = (tmp_path / "results.csv").read_text().splitlines()
+    assert len(lines) == 3 and lines[0].startswith("test,material,direction")
+    assert sorted(p.name for p in tmp_path.glob("*.png")) == [
+        "cantilever_silk_warp_0.5.png", "cantilever_silk_weft_0.5.png"]
+
+
+@pytest.mark.parametrize("argv, flag", [
+    (["fabric-test", "cantilever", "--material", "linen"], "--material"),
+    (["fabric-test", "drape", "--resolution", "2"], "--resolution"),
+    (["fabric-test", "drape", "--resolution", "x"], "--resolution"),
+    (["fabric-test", "cantilever", "--set", "cloth.material.density=-1"], "density"),
+])
+def test_bad_lab_input_is_one_line_exit_2(argv, flag, capsys):
+    assert main(argv) == 2
+    message = capsys.readouterr().err.strip()
+    assert flag in message and "\n" not in message
