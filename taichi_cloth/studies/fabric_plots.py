@@ -45,7 +45,7 @@ def plot_drape(row: dict, target: Path) -> None:
     figure = Figure(figsize=(9.0, 4.2))
     top, side = figure.add_subplot(1, 2, 1), figure.add_subplot(1, 2, 2)
     top.add_collection(PolyCollection(positions[triangles][:, :, [0, 2]], facecolors="0.35",
-                                      edgecolors="none"))
+                                      edgecolors="none", antialiased=False))
     for radius, style, label in ((SPECIMEN_RADIUS, "--", "specimen, flat"),
                                  (DISC_RADIUS, "-", "support disc")):
         angle = [2 * math.pi * k / 256 for k in range(257)]
