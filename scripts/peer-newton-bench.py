@@ -9,7 +9,7 @@ the project never depends on newton:
 
 (newton 1.8.0 pulls warp-lang 1.19.0 and numpy; no torch, no CUDA needed).
 
-Reference problem, identical to taichi_cloth's ``bench`` (taichi_cloth/bench.py, REFERENCE_MATERIAL,
+Reference problem, identical to taichi_cloth's ``bench`` (taichi_cloth/studies/bench.py, REFERENCE_MATERIAL,
 garment.py, materials.py), rebuilt here in NumPy so this script needs nothing from that project:
 
 - n × n particles 0.01 m apart, horizontal in the x–z plane at y = 1.0 m:
@@ -20,7 +20,7 @@ garment.py, materials.py), rebuilt here in NumPy so this script needs nothing fr
   -> 1.3e-5 kg inside, 6.5e-6 kg on edges, 2.1667e-6 / 4.3333e-6 kg at corners (as ours).
 - springs in our order: stretch (row, column neighbours), shear (both diagonals), bend (skip-one
   along rows and columns); 12 per interior particle; no damping (kd = 0).
-- per-spring stiffness from taichi_cloth.materials.spring_constants(REFERENCE_MATERIAL, 0.01, 0.01)
+- per-spring stiffness from taichi_cloth.config.materials.spring_constants(REFERENCE_MATERIAL, 0.01, 0.01)
   = SpringConstants(stretch_x=10.0, stretch_z=10.0, shear=2.0, bend=1.0) [N/m]
   (stretch k = k_m·dz/dx = 10; shear k = G(dx²+dz²)/(2dxdz) = 2; bend k = B/(dx·dz) = 1e-4/1e-4 = 1).
   newton's eval_spring (solvers/semi_implicit/kernels_particle.py) applies
@@ -62,7 +62,7 @@ DT_S = 1.0 / 1920.0
 HEIGHT_M = 1.0
 DENSITY = 0.13  # kg/m²
 GRAVITY = 9.81
-# Per-spring stiffness [N/m], from taichi_cloth.materials.spring_constants(REFERENCE_MATERIAL,
+# Per-spring stiffness [N/m], from taichi_cloth.config.materials.spring_constants(REFERENCE_MATERIAL,
 # 0.01, 0.01) computed with /work/main/.venv: stretch_x = stretch_z = 10.0, shear = 2.0, bend = 1.0.
 STIFFNESS = {"stretch": 10.0, "shear": 2.0, "bend": 1.0}
 

@@ -1,9 +1,10 @@
 """taichi_cloth: a Taichi mass-spring cloth simulator for garments on moving bodies.
 
-Pipeline (docs/architecture.md): ``config`` (scene file → Scene) → ``cloth`` (garment) and
-``body`` (dancer) → ``effects`` and ``physics`` (model, control, forces, integrators, simulation)
-→ ``render`` and ``output`` (frames, meshes, video, stats) ← ``studies`` (compare, bench) ←
-``cli``."""
+Layers, each importing only from those before it (docs/architecture.md): ``errors``;
+``settings``, ``runtime``, ``flags``, ``gather``; ``effects`` (one file per effect); ``config``
+(scene file → Scene); ``cloth`` (garment) and ``body`` (dancer); ``physics`` (model, control,
+forces, integrators, simulation); ``render``; ``output`` (frames, meshes, video, stats);
+``studies`` (compare, bench, the textile lab); ``cli``."""
 
 import os
 

@@ -1,2 +1,3 @@
 """The garment in NumPy, before any Taichi field: shapes, UVs, triangles, spring families,
-masses and pins (``garment.py``), and their connectivity and gather lists (``topology.py``)."""
+masses, pins and warp directions (``garment.py``), and its connectivity: spring pairs,
+triangles, lumped masses, bending stencils (``topology.py``)."""

@@ -316,6 +316,11 @@ def load_scene(name_or_path: str, overrides: tuple[str, ...] = ()) -> Scene:
     body = build_table(ctx, BodyConfig, raw["body"], "body") if "body" in raw else None
     if cloth.pin == "waist" and cloth.shape != "skirt":
         raise ctx.error("cloth.pin", "pin = \"waist\" needs shape = \"skirt\"")
+    if cloth.pin == "clamp" and cloth.shape != "disc":
+        raise ctx.error("cloth.pin", "pin = \"clamp\" needs shape = \"disc\"")
+    if cloth.shape == "disc" and cloth.pin not in ("clamp", "none"):
+        raise ctx.error("cloth.pin", f"a disc is pinned at \"clamp\" or \"none\", got "
+                                     f"{cloth.pin!r}")
     if cloth.shape == "skirt" and cloth.pin not in ("waist", "none"):
         raise ctx.error("cloth.pin", f"a skirt is pinned at \"waist\" or \"none\", got "
                                      f"{cloth.pin!r}")

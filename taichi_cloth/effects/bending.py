@@ -120,10 +120,12 @@ class Bending(Effect):
 
     @ti.func
     def _stencil_sum(self, u, s):
-        """Σ_a w_a·u_a over stencil s."""
+        """Σ_a w_a·u_a over stencil s, as Σ_a w_a·(u_a − u_0) (the same, since Σ w_a = 0): on
+        positions the differences keep f32 from cancelling large coordinates."""
+        origin = u[self.stencil[s][0]]
         total = ti.Vector.zero(self.model.real, 3)
-        for a in ti.static(range(4)):
-            total += self.weight[s][a] * u[self.stencil[s][a]]
+        for a in ti.static(range(1, 4)):
+            total += self.weight[s][a] * (u[self.stencil[s][a]] - origin)
         return total
 
     @ti.func
@@ -163,7 +165,8 @@ class Bending(Effect):
 
     def energy(self, x: np.ndarray) -> float:
         """E = ½ Σ_e B_e ‖Σ_a w_a x_a‖² [J] of positions x [m] (N, 3)."""
-        curvature = np.einsum("ha,hak->hk", self.host_weights, x[self.host_stencils])
+        corners = x[self.host_stencils]
+        curvature = np.einsum("ha,hak->hk", self.host_weights, corners - corners[:, :1])
         return float(0.5 * np.sum(self.host_rigidity * np.einsum("hk,hk->h", curvature,
                                                                  curvature)))
 

@@ -58,8 +58,11 @@ class CapsuleContact(Effect):
         self.capsule_velocity_b = ti.Vector.field(3, model.real, self.capsule_count)
         self.capsule_center = ti.Vector.field(3, model.real, self.capsule_count)
         self.capsule_reach_sq = ti.field(model.real, self.capsule_count)
-        # filled after every allocation: one SNode tree (physics/control.py)
-        self.capsule_radius.from_numpy(np.asarray(capsule_radius, dtype=track.numpy_real))
+        self._host_radius = np.asarray(capsule_radius, dtype=track.numpy_real)
+
+    def upload(self) -> None:
+        """The capsule radii into their field (after every allocation: one SNode tree)."""
+        self.capsule_radius.from_numpy(self._host_radius)
 
     @ti.func
     def prepare(self, t):

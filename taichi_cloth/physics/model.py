@@ -8,7 +8,8 @@ Forces are gathered, never scattered: every particle owns the list of its spring
 (``particle_spring_start``/``particle_spring``/``particle_neighbor``) and of its triangles, so a
 force is a sum in a fixed order and a run is bit-reproducible on the CPU (no atomic float adds).
 
-A cloth on a regular grid (every garment ``cloth.garment`` builds) also gets a ``GridStencil``
+A cloth on a regular grid whose springs depend on the row only (sheets and skirts; not a disc
+specimen, whose anisotropic springs change around each ring) also gets a ``GridStencil``
 (``physics.packed_grid``): its springs as a stencil, for the SIMD spring pass.
 
 A pinned particle has inverse mass 0; where it is comes from the prescribed motion

@@ -1,6 +1,6 @@
 """The SIMD layout of a grid cloth's springs: a stencil, and packed copies of the state.
 
-A cloth on a regular grid (every garment ``cloth.garment`` builds) has springs that are the same
+A cloth on a regular grid (sheets and skirts from ``cloth.garment``) has springs that are the same
 few neighbour offsets at every particle, with rest lengths and stiffnesses that depend only on
 the row: a ``GridStencil`` (part of the constant model). ``PackedGrid`` holds positions (and
 velocities) packed in groups of ``SIMD_LANES`` columns, component by component, and evaluates

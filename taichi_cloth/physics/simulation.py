@@ -80,8 +80,12 @@ class Simulation:
         self.forces = Forces(self.model, self.effects,
                              packed_grid_for(self.model, integrator_class.packs_springs))
         post_steps = [e.post_step for e in self.effects if e.post_step is not None]
+        if len(post_steps) > 1:
+            raise NotImplementedError("more than one effect with a post step (projection)")
         self.integrator = make_integrator(scene.simulation.integrator, self.forces, self.control,
                                           post_steps[0] if post_steps else None, scene.simulation)
+        # scratch for ``total_forces``, allocated with the states (one SNode tree)
+        self.force_scratch = ti.Vector.field(3, self.model.real, self.model.particle_count)
         self.state_in, self.state_out, self.backup = self.model.states(3)
         self._compiled_variants = set()
         self.time_step = self._choose_time_step()
@@ -119,6 +123,11 @@ class Simulation:
 
     def positions(self) -> np.ndarray:
         return self.state_in.x.to_numpy().astype(np.float64)
+
+    def total_forces(self) -> np.ndarray:
+        """Every particle's total force [N] (N, 3) at the current state, at t = 0."""
+        self.forces.evaluate(self.state_in.x, self.state_in.v, 0.0, self.force_scratch)
+        return self.force_scratch.to_numpy().astype(np.float64)
 
     def snapshot(self) -> Snapshot:
         """Host copies of the current state, time step and integrator memory."""

@@ -8,6 +8,7 @@ import time
 import taichi as ti
 
 from taichi_cloth.effects import EFFECTS
+from taichi_cloth.errors import InputError
 from taichi_cloth.studies.timing import substep_row, timed_rate
 
 
@@ -89,7 +90,8 @@ def frame_rate(simulation, seconds: float, repeats: int) -> list[float]:
 
 def bench_effects(scene_name: str, seconds: float, repeats: int) -> list[dict]:
     """The cost of each effect: the scene with and without it (added with its defaults when the
-    scene lacks it), in microseconds per substep and nanoseconds per particle-substep."""
+    scene lacks it and can have it), in microseconds per substep and nanoseconds per
+    particle-substep."""
     base = scene_simulation(scene_name)
     base_rates = frame_rate(base, seconds, repeats)
     base_rate = statistics.median(base_rates)
@@ -100,8 +102,11 @@ def bench_effects(scene_name: str, seconds: float, repeats: int) -> list[dict]:
                         scene=scene_name, effects=base.effect_names)]
     for name in (effect.name for effect in EFFECTS):
         declared = name in base.scene.effects
-        other = scene_simulation(scene_name,
-                                 (f"effects.{name}={'false' if declared else 'true'}",))
+        try:
+            other = scene_simulation(scene_name,
+                                     (f"effects.{name}={'false' if declared else 'true'}",))
+        except InputError:  # the scene cannot have it (collision without a body, ...)
+            continue
         other_rates = frame_rate(other, seconds, repeats)
         with_rate, without_rate = (base_rate, statistics.median(other_rates)) if declared \
             else (statistics.median(other_rates), base_rate)

@@ -22,7 +22,7 @@ import math
 import numpy as np
 
 from taichi_cloth.physics.metrics import RunRecord
-from taichi_cloth.studies.fabric_lab import lab_simulation, settle
+from taichi_cloth.studies.fabric_lab import lab_scene, lab_simulation, settle
 
 SPECIMEN_RADIUS = 0.15  # m
 DISC_RADIUS = 0.09  # m
@@ -69,9 +69,11 @@ def shadow_area(positions: np.ndarray, triangles: np.ndarray) -> float:
     return float(covered.sum()) * SHADOW_PIXEL ** 2
 
 
-def drape_coefficient(shadow: float) -> float:
+def drape_coefficient(shadow: float, flat_shadow: float = math.pi * SPECIMEN_RADIUS ** 2) -> float:
+    """DC = (A_shadow − A_disc)/(A_specimen − A_disc), the specimen's area taken as the flat
+    mesh's own shadow (its polygonal hem and centre hole measured alike), so flat is 1."""
     disc = math.pi * DISC_RADIUS ** 2
-    return (shadow - disc) / (math.pi * SPECIMEN_RADIUS ** 2 - disc)
+    return (shadow - disc) / (flat_shadow - disc)
 
 
 def hem_profile(positions: np.ndarray, columns: int) -> tuple[np.ndarray, np.ndarray]:
@@ -137,11 +139,11 @@ def drape(material: tuple[str, ...], spacing_fraction: float,
           extra: tuple[str, ...] = ()) -> dict:
     """The test at a hem spacing of ``spacing_fraction`` × the fabric's mean bending length:
     a result row (areas in m²)."""
-    probe = lab_simulation("drape", material + extra)
-    scene_material = probe.scene.material
+    scene_material = lab_scene("drape", material + extra).material
     bending_length = float(np.mean(scene_material.bending_length))
     spacing = spacing_fraction * bending_length
     simulation = lab_simulation("drape", material + extra + disc_overrides(spacing))
+    flat_shadow = shadow_area(simulation.garment.positions, simulation.garment.triangles)
     settle_dynamically(simulation)
     settled = settle(simulation, MOVE_TOLERANCE, RESIDUAL_TOLERANCE)
     shadow = shadow_area(settled.positions, simulation.garment.triangles)
@@ -150,7 +152,8 @@ def drape(material: tuple[str, ...], spacing_fraction: float,
         "test": "drape", "material": scene_material.name, "direction": "-",
         "spacing_m": spacing, "particles": simulation.model.particle_count,
         "bending_length_m": bending_length, "shadow_area_m2": shadow,
-        "drape_coefficient": drape_coefficient(shadow), "nodes": node_count(radius),
+        "drape_coefficient": drape_coefficient(shadow, flat_shadow),
+        "nodes": node_count(radius),
         "settle_steps": settled.steps, "residual": settled.residual,
         "positions": settled.positions, "triangles": simulation.garment.triangles,
         "hem_angle": angle, "hem_radius": radius,

@@ -19,9 +19,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import taichi as ti
 
-from taichi_cloth.config.materials import PRESETS
+from taichi_cloth.config.materials import PRESETS, STANDARD_GRAVITY
 from taichi_cloth.config.scene import SCENES_DIR, load_scene, resolve_scene_path
 from taichi_cloth.errors import InputError
 from taichi_cloth.output.files import atomic_path
@@ -61,26 +60,22 @@ def material_overrides(material: str) -> tuple[str, ...]:
                      f"file (.toml)")
 
 
+def lab_scene(test: str, overrides: tuple[str, ...]):
+    """The lab scene ``scenes/lab/<test>.toml`` with ``overrides`` (a ``config.scene.Scene``)."""
+    return load_scene(str(LAB_SCENES / f"{test}.toml"), overrides)
+
+
 def lab_simulation(test: str, overrides: tuple[str, ...]) -> Simulation:
-    """The lab scene ``scenes/lab/<test>.toml`` with ``overrides``."""
-    return Simulation.from_scene(str(LAB_SCENES / f"{test}.toml"), overrides)
+    """The simulation of ``lab_scene(test, overrides)``."""
+    return Simulation.from_scene(lab_scene(test, overrides))
 
 
-@ti.kernel
-def _evaluate_forces(forces: ti.template(), x: ti.template(), v: ti.template(), t: ti.f64,
-                     out: ti.template()):
-    forces.prepare(x, v, t)
-    for i_p in x:
-        out[i_p] = forces.particle_force(x, v, i_p, ti.cast(t, forces.model.real))
-
-
-def residual(simulation: Simulation, out) -> float:
-    """Largest |f_i| / (m_i·g) over the free particles at the current state (g = 9.81)."""
-    state = simulation.state_in
-    _evaluate_forces(simulation.forces, state.x, state.v, 0.0, out)
-    force = np.linalg.norm(out.to_numpy(), axis=1)
+def residual(simulation: Simulation) -> float:
+    """Largest |f_i| / (m_i·g) over the free particles at the current state (g the standard
+    gravity)."""
+    force = np.linalg.norm(simulation.total_forces(), axis=1)
     free = ~simulation.garment.pinned
-    return float(np.max(force[free] / (simulation.model.host_mass[free] * 9.81)))
+    return float(np.max(force[free] / (simulation.model.host_mass[free] * STANDARD_GRAVITY)))
 
 
 def settle(simulation: Simulation, move_tolerance: float = MOVE_TOLERANCE,
@@ -88,7 +83,6 @@ def settle(simulation: Simulation, move_tolerance: float = MOVE_TOLERANCE,
     """Newton steps from rest until no particle moves more than ``move_tolerance`` [m] in a
     step and the residual is under ``residual_tolerance`` (module docstring)."""
     record = RunRecord()
-    out = ti.Vector.field(3, simulation.model.real, simulation.model.particle_count)
     previous = simulation.positions()
     remaining = math.inf
     for step in range(MAX_SETTLE_STEPS):
@@ -101,11 +95,11 @@ def settle(simulation: Simulation, move_tolerance: float = MOVE_TOLERANCE,
         if not np.isfinite(move):
             raise ArithmeticError("the lab specimen became non-finite while settling")
         if move < move_tolerance:
-            remaining = residual(simulation, out)
+            remaining = residual(simulation)
             if remaining < residual_tolerance:
                 break
     else:
-        remaining = residual(simulation, out)
+        remaining = residual(simulation)
     return Settled(simulation, previous, step + 1, move, remaining)
 
 
