@@ -3,6 +3,8 @@ and is renamed into place (``os.replace`` is atomic on one file system), so an i
 leaves only whole files. JSON documents, PNG frames, copies; videos (``output.video``) and meshes
 (``output.meshes``) write through ``atomic_path`` too."""
 
+import csv
+import io
 import json
 import os
 import shutil
@@ -58,6 +60,17 @@ def remove_stale_frames(directory: Path, prefix: str, frame_count: int) -> None:
     for path in Path(directory).glob(f"{prefix}_[0-9][0-9][0-9][0-9][0-9].*"):
         if int(path.stem.rsplit("_", 1)[1]) >= frame_count:
             path.unlink(missing_ok=True)
+
+
+def write_csv(target: Path, rows: list[dict], columns) -> None:
+    """``rows`` under ``columns`` as CSV, blanks for missing or None values, atomically."""
+    text = io.StringIO()
+    writer = csv.DictWriter(text, columns, restval="", lineterminator="\n")
+    writer.writeheader()
+    for row in rows:
+        writer.writerow({key: ("" if value is None else value) for key, value in row.items()})
+    with atomic_path(target) as temporary:
+        temporary.write_text(text.getvalue(), encoding="utf-8")
 
 
 def copy_file(source: Path, target: Path) -> None:

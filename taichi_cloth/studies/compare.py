@@ -29,8 +29,6 @@ Outputs (``output/compare/<scene>/``): ``results.csv``, ``summary.json``, ``repo
 (``compare_plots``) and a labelled side-by-side video and contact sheet (``compare_video``).
 """
 
-import csv
-import io
 import math
 import os
 import platform
@@ -43,7 +41,7 @@ import taichi as ti
 from taichi_cloth.output.run import OUTPUT_ROOT, check_writable
 from taichi_cloth.errors import InputError, UnstableError
 from taichi_cloth.flags import choice_list, number_list
-from taichi_cloth.output.files import atomic_path, write_json
+from taichi_cloth.output.files import write_csv, write_json
 from taichi_cloth.physics.integrators import INTEGRATORS
 from taichi_cloth.output.progress import Progress
 from taichi_cloth.config.scene import load_scene
@@ -274,17 +272,6 @@ def result_row(run: Run, reference: Run, free: np.ndarray, duration: float) -> d
     return row
 
 
-def write_csv(target: Path, rows: list[dict]) -> None:
-    """``rows`` under ``CSV_COLUMNS``, blanks for missing values, atomically."""
-    text = io.StringIO()
-    writer = csv.DictWriter(text, CSV_COLUMNS, restval="", lineterminator="\n")
-    writer.writeheader()
-    for row in rows:
-        writer.writerow({key: ("" if value is None else value) for key, value in row.items()})
-    with atomic_path(target) as temporary:
-        temporary.write_text(text.getvalue(), encoding="utf-8")
-
-
 def unique_steps(dts, frame_time: float) -> list[TimeStep]:
     """The steps really taken for the requested ``dts`` [s], largest first, one per substep
     count (two requests that round to the same step run once)."""
@@ -384,7 +371,7 @@ def compare(scene_name: str, overrides: list[str], integrators: str | None = Non
                                     else None) for name in names}},
         "orders": convergence_orders(rows, names, floor), "video_dt": shown.dt,
         "machine": machine_description(), "results": rows}
-    write_csv(directory / "results.csv", rows)
+    write_csv(directory / "results.csv", rows, CSV_COLUMNS)
     write_json(directory / "summary.json", summary)
     compare_plots.write_plots(directory, summary, runs, reference)
     compare_report.write_report(directory / "report.md", summary)

@@ -12,7 +12,6 @@ residual force (the largest unbalanced force on a free particle, over that parti
 below ``RESIDUAL_TOLERANCE``; the residual is reported with every result.
 """
 
-import csv
 import dataclasses
 import math
 from dataclasses import dataclass
@@ -23,7 +22,7 @@ import numpy as np
 from taichi_cloth.config.materials import PRESETS, STANDARD_GRAVITY
 from taichi_cloth.config.scene import SCENES_DIR, load_scene, resolve_scene_path
 from taichi_cloth.errors import InputError
-from taichi_cloth.output.files import atomic_path
+from taichi_cloth.output.files import write_csv
 from taichi_cloth.physics.metrics import RunRecord
 from taichi_cloth.physics.simulation import Simulation
 
@@ -103,14 +102,6 @@ def settle(simulation: Simulation, move_tolerance: float = MOVE_TOLERANCE,
     return Settled(simulation, previous, step + 1, move, remaining)
 
 
-def write_csv(target: Path, rows: list[dict]) -> None:
-    """The results as CSV (whole or not at all)."""
-    with atomic_path(target) as temporary, open(temporary, "w", newline="") as handle:
-        writer = csv.DictWriter(handle, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
-
-
 def table(rows: list[dict], columns: list[tuple[str, str, str]]) -> str:
     """A fixed-width table of ``rows``: (key, heading, format) per column."""
     widths = [max(len(heading), 10) for _, heading, _ in columns]
@@ -173,7 +164,7 @@ def fabric_test_command(test: str, materials: str, resolutions: str, overrides: 
                     print(f"fabric-test: {test} {label} done", flush=True)
     columns = CANTILEVER_COLUMNS if test == "cantilever" else DRAPE_COLUMNS
     print(table(rows, columns))
-    write_csv(directory / "results.csv", rows)
+    write_csv(directory / "results.csv", rows, list(rows[0]))
     if not quiet:
         print(f"→ {directory}")
     return 0
