@@ -20,7 +20,8 @@ and its dashpot's D_s = ∂f_i/∂v_j = c·n·nᵀ (its ∂/∂x, proportional t
 left out). For a compressed spring (l < L) the geometric term (1 − L/l) is negative and can make
 the system indefinite; ``definite=True`` clamps it at 0 (the usual fix, Choi & Ko 2002), which the
 solver uses; ``definite=False`` is the exact derivative (for finite-difference tests). Effects
-with ``has_jacobian`` add a per-particle block (contact, drag, wind).
+with ``has_jacobian`` add a per-particle block (contact, drag, wind), effects with
+``has_coupled_jacobian`` their products over the particles they couple (bending).
 """
 
 import taichi as ti

@@ -1,9 +1,11 @@
 """Choosing the time step: the scene's dt, or ``dt = "auto"`` from the cloth's highest frequency.
 
 The highest angular frequency ω_max of the linearised cloth at rest is the square root of the
-largest eigenvalue of M⁻¹K over the free particles, K the spring stiffness matrix (a spring at rest
-along unit n contributes k·n·nᵀ blocks). Power iteration on M⁻¹K estimates it; Gershgorin
-(ω² ≤ max_i 2·Σ_{s∋i} k_s / m_i, docs/physics.md) bounds it from above. Penalty contact adds its
+largest eigenvalue of M⁻¹K over the free particles, K the stiffness matrix of the springs (a
+spring at rest along unit n contributes k·n·nᵀ blocks) and of the effects that couple particles
+(bending's constant Hessian). Power iteration on M⁻¹K estimates it; Gershgorin
+(ω² ≤ max_i Σ_j |K_ij| / m_i, for springs 2·Σ_{s∋i} k_s / m_i, docs/physics.md) bounds it from
+above. Penalty contact adds its
 stiffness per unit mass k̂ to ω², and its own modes (the normal spring with its damping ratio, and
 the friction damper) bound the step too. The step is then ``safety`` × the integrator's stability bound
 for all modes up to ω_max with the springs' Rayleigh damping (``integrators.stability``).

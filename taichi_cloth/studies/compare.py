@@ -1,4 +1,5 @@
-"""The integrator comparison (README: what accuracy costs in time): what each integrator's accuracy costs in time.
+"""The integrator comparison (the README's first promise): what each integrator's accuracy
+costs in time.
 
 ``compare SCENE`` runs the scene once per integrator × time step and measures, per run:
 
@@ -12,8 +13,8 @@
   times smaller a step than the smallest swept one, or ``--reference-dt``): the positions of the
   free (unpinned) particles at every frame end; ``error_rms`` is the root mean square over
   particles and frames, ``error_max`` the largest single distance [m].
-- energy drift: (E_end − E_ref,end) / max_t KE_ref, the run's total energy (kinetic + gravity +
-  springs) at the end minus the reference's, in units of the reference's peak kinetic energy: the
+- energy drift: (E_end − E_ref,end) / max_t KE_ref, the run's total energy (kinetic + the effects'
+  potentials + springs) at the end minus the reference's, in units of the reference's peak kinetic energy: the
   energy the integrator made (+) or destroyed (−) beyond the physical damping, measured on the
   scale of the motion, and independent of where gravity's potential is zero.
 - stability: every run has ``simulation.max_retries = 0``, so the guard does not halve the step;
