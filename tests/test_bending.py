@@ -11,9 +11,9 @@ import pytest
 import taichi as ti
 from systems import assemble
 
-from taichi_cloth.cloth.garment import build_garment
+from taichi_cloth.cloth.garment import build_garment, hinge_rigidity
 from taichi_cloth.config.scene import load_scene
-from taichi_cloth.effects.bending import Bending, BendingSettings, hinge_rigidity
+from taichi_cloth.effects.bending import Bending, BendingSettings
 from taichi_cloth.physics.model import Model
 from taichi_cloth.physics.simulation import Simulation
 

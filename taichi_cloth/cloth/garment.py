@@ -30,10 +30,11 @@ class Garment:
     counter-clockwise seen from outside (skirt) or from +z (vertical sheet); springs: family name →
     (S_f,2) particle indices; spring_stiffness: family → (S_f,) N/m; mass (N,) kg; pinned (N,) bool;
     columns, rows: grid shape; periodic: whether columns wrap around (skirt); damping_time: the
-    fabric's Rayleigh damping time β [s]; bending_rigidity: (B_warp, B_weft) [N·m]; warp (N,3):
+    fabric's Rayleigh damping time β [s]; warp (N,3):
     the unit warp direction in the rest shape at each particle (down the rows, turned by the bias
     towards the columns); hinges (H,4): the bending stencils of the triangles
-    (``topology.hinge_stencils``).
+    (``topology.hinge_stencils``); hinge_rigidity (H,): each hinge's B [N·m] from the warp and
+    weft rigidity (``hinge_rigidity``).
     """
 
     positions: np.ndarray
@@ -47,9 +48,9 @@ class Garment:
     rows: int
     periodic: bool
     damping_time: float
-    bending_rigidity: tuple = (0.0, 0.0)
     warp: np.ndarray | None = None
     hinges: np.ndarray = field(default_factory=lambda: np.zeros((0, 4), np.int32))
+    hinge_rigidity: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     @property
     def particle_count(self) -> int:
@@ -125,6 +126,24 @@ def grid_tangents(positions: np.ndarray, columns: int, rows: int, periodic: bool
     return u / np.linalg.norm(u, axis=1, keepdims=True), v
 
 
+def grain_cos_sq(positions: np.ndarray, warp: np.ndarray, pairs: np.ndarray) -> np.ndarray:
+    """cos² of the angle between each pair's rest direction (pairs (S, 2) of particle indices)
+    and the warp (``warp``: (N, 3) unit vectors) averaged over its two ends."""
+    direction = positions[pairs[:, 1]] - positions[pairs[:, 0]]
+    grain = warp[pairs[:, 0]] + warp[pairs[:, 1]]
+    return np.einsum("sk,sk->s", direction, grain) ** 2 / (
+        np.einsum("sk,sk->s", direction, direction) * np.einsum("sk,sk->s", grain, grain))
+
+
+def hinge_rigidity(positions: np.ndarray, warp: np.ndarray, hinges: np.ndarray,
+                   rigidity_warp: float, rigidity_weft: float) -> np.ndarray:
+    """B [N·m] of every bending hinge (H, 4; edge x0–x1 first): a hinge whose rest edge makes
+    angle ψ with the warp folds the cloth across the direction at ψ + 90°, so
+    B = B_weft·cos²ψ + B_warp·sin²ψ (a fold line along the weft bends the warp)."""
+    cos_sq = grain_cos_sq(positions, warp, hinges[:, :2])
+    return rigidity_weft * cos_sq + rigidity_warp * (1.0 - cos_sq)
+
+
 def family_stiffness(positions: np.ndarray, springs: dict, material: Material, columns: int,
                      rows: int, periodic: bool, warp: np.ndarray) -> dict:
     """Per-spring stiffness [N/m] from the local rest spacing of each spring's two particles.
@@ -146,10 +165,7 @@ def family_stiffness(positions: np.ndarray, springs: dict, material: Material, c
     stiffness = {}
     for family, pairs in springs.items():
         a, b = pairs[:, 0], pairs[:, 1]
-        direction = positions[b] - positions[a]
-        grain = warp[a] + warp[b]
-        cos_sq = np.einsum("sk,sk->s", direction, grain) ** 2 / (
-            np.einsum("sk,sk->s", direction, direction) * np.einsum("sk,sk->s", grain, grain))
+        cos_sq = grain_cos_sq(positions, warp, pairs)
         constants = spring_constants(material, 0.5 * (dx[a] + dx[b]), 0.5 * (dz[a] + dz[b]),
                                      cos_sq, cos_sq)
         horizontal = (a // columns) == (b // columns)
@@ -190,6 +206,7 @@ def build_garment(cloth: ClothConfig, material: Material, waist_height: float | 
                if family in families}
     triangles = grid_triangles(columns, rows, periodic)
     warp = warp_directions(cloth, positions)
+    hinges = hinge_stencils(triangles)
     return Garment(
         positions=positions,
         uvs=uvs,
@@ -203,9 +220,10 @@ def build_garment(cloth: ClothConfig, material: Material, waist_height: float | 
         rows=rows,
         periodic=periodic,
         damping_time=material.damping,
-        bending_rigidity=(material.bend_stiffness, material.bend_weft),
         warp=warp,
-        hinges=hinge_stencils(triangles),
+        hinges=hinges,
+        hinge_rigidity=hinge_rigidity(positions, warp, hinges, material.bend_stiffness,
+                                      material.bend_weft),
     )
 
 

@@ -24,9 +24,9 @@ pattern. E is quadratic in x: its force and Hessian are exact and constant,
 with the Rayleigh dashpot c_e = β·B_e of the springs when the scene declares ``damping``
 (β: the model's ``dashpot_time``). Each particle gathers over its own stencils (a fixed order).
 
-Warp and weft: a hinge whose rest edge makes angle ψ with the cloth's warp direction (the
-garment's ``warp``, the bias already applied) folds the cloth across the direction at ψ + 90°,
-so it takes B_e = B_weft·cos²ψ + B_warp·sin²ψ: a fold line along the weft bends the warp.
+Warp and weft: each hinge takes the garment's ``hinge_rigidity``, B_e = B_weft·cos²ψ +
+B_warp·sin²ψ for a rest edge at angle ψ to the warp (``cloth.garment.hinge_rigidity``, beside
+the stretch springs' own anisotropy).
 """
 
 from dataclasses import dataclass
@@ -62,18 +62,6 @@ def hinge_weights(positions: np.ndarray, stencils: np.ndarray) -> np.ndarray:
     return weights / np.sqrt(areas)[:, None]
 
 
-def hinge_rigidity(positions: np.ndarray, warp: np.ndarray, stencils: np.ndarray,
-                   rigidity_warp: float, rigidity_weft: float) -> np.ndarray:
-    """B_e [N·m] of every stencil: B_weft·cos²ψ + B_warp·sin²ψ, ψ the angle between the rest
-    edge x0–x1 and the warp direction at its midpoint (``warp``: (N, 3) unit vectors)."""
-    edge = positions[stencils[:, 1]] - positions[stencils[:, 0]]
-    edge /= np.linalg.norm(edge, axis=1, keepdims=True)
-    grain = warp[stencils[:, 0]] + warp[stencils[:, 1]]
-    grain /= np.linalg.norm(grain, axis=1, keepdims=True)
-    cos_sq = np.einsum("hk,hk->h", edge, grain) ** 2
-    return rigidity_weft * cos_sq + rigidity_warp * (1.0 - cos_sq)
-
-
 @ti.data_oriented
 class Bending(Effect):
     """Curvature bending of the garment (module docstring)."""
@@ -88,11 +76,9 @@ class Bending(Effect):
         garment = model.garment
         self.model = model
         stencils = garment.hinges
-        rigidity_warp, rigidity_weft = garment.bending_rigidity
         self.host_stencils = stencils
         self.host_weights = hinge_weights(garment.positions, stencils)
-        self.host_rigidity = settings.scale * hinge_rigidity(
-            garment.positions, garment.warp, stencils, rigidity_warp, rigidity_weft)
+        self.host_rigidity = settings.scale * garment.hinge_rigidity
         self.host_damping = (model.dashpot_time or 0.0) * self.host_rigidity
         start, item, slot = incidence_lists(stencils, model.particle_count)
         count, real = max(1, len(stencils)), model.real
