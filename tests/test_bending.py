@@ -189,7 +189,7 @@ def test_every_integrator_runs_curvature_bending(integrator):
                                                  f"simulation.integrator={integrator}"))
     assert "bending" in simulation.effect_names
     record = simulation.run(3)
-    assert len(record.frames) == 3 and record.retries == 0
+    assert len(record.frames) == 4 and record.retries == 0  # frame 0 (the start) and 3 more
     assert record.frames[-1].extra["bending_energy"] > 0  # it bends as it swings
 
 

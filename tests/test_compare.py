@@ -97,7 +97,7 @@ def test_plots_report_and_video_are_written(sweep):
     if not rendered:
         pytest.skip("no Vulkan driver: the side-by-side video was not rendered")
     reader = imageio.v2.get_reader(out / "side_by_side.mp4")
-    assert reader.count_frames() == 12 and reader.get_meta_data()["size"][0] > 4 * 480
+    assert reader.count_frames() == 13 and reader.get_meta_data()["size"][0] > 4 * 480  # 0–12
     sheet = iio.imread(out / "contact_sheet.png")
     assert sheet.shape[0] > 400 and sheet[..., :3].std() > 10
 

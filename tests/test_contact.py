@@ -61,7 +61,7 @@ class OneCapsule:
         self.model = Model(garment, "f64", None)
         self.radius = 0.1
         self.config = CollisionSettings(stiffness=1e4, damping=0.3, friction=friction,
-                                        thickness=0.0)
+                                        thickness=0.0, surface=False)  # the particle alone
         physics = assemble(self.model, [(CapsuleContact, self.config)],
                            capsule_radius=[self.radius])
         self.track = physics.control.capsule_track

@@ -18,7 +18,8 @@ from taichi_cloth.cloth.garment import build_garment
 from taichi_cloth.config.scene import load_scene
 from taichi_cloth.render.surfaces import capsule_template
 
-FRAMES = 3
+FRAMES = 3  # simulated; files are written for frames 0 (the start) … FRAMES
+WRITTEN = FRAMES + 1
 COLUMNS, ROWS = 16, 8
 FORMATS = ("obj", "ply", "vtu", "xdmf")
 
@@ -49,7 +50,7 @@ def test_one_file_per_frame_per_format_and_one_series_per_object(hula_meshes):
     for name in ("cloth", "body"):
         for file_format in ("obj", "ply", "vtu"):
             assert [n for n in names if n.startswith(f"{name}_") and n.endswith(file_format)] == \
-                [f"{name}_{k:05d}.{file_format}" for k in range(FRAMES)]
+                [f"{name}_{k:05d}.{file_format}" for k in range(WRITTEN)]
         assert f"{name}.xdmf" in names
     assert "cloth.mtl" in names and "pareo.png" in names
     assert not [n for n in names if n.startswith(".")]  # no temporary file left
@@ -59,7 +60,7 @@ def test_one_file_per_frame_per_format_and_one_series_per_object(hula_meshes):
 def test_cloth_and_body_meshes_read_back_with_their_counts(hula_meshes, file_format):
     particles, triangles = COLUMNS * ROWS, 2 * COLUMNS * (ROWS - 1)
     body_vertices, body_triangles = body_counts()
-    for frame in range(FRAMES):
+    for frame in range(WRITTEN):
         cloth = meshio.read(hula_meshes / f"cloth_{frame:05d}.{file_format}")
         assert cloth.points.shape == (particles, 3) and np.isfinite(cloth.points).all()
         assert triangles_of(cloth).shape == (triangles, 3)
@@ -87,17 +88,17 @@ def test_obj_carries_uvs_with_the_seam_column_duplicated(hula_meshes):
 def test_xdmf_series_has_one_step_per_frame_with_moving_geometry(hula_meshes):
     fps = load_scene("hula").scene.fps
     with meshio.xdmf.TimeSeriesReader(hula_meshes / "cloth.xdmf") as reader:
-        assert reader.num_steps == FRAMES
+        assert reader.num_steps == WRITTEN
         points, cells = reader.read_points_cells()
         assert points.shape == (COLUMNS * ROWS, 3) and cells[0].data.shape[0] == 2 * COLUMNS * (ROWS - 1)
-        times = [reader.read_data(k)[0] for k in range(FRAMES)]
-    np.testing.assert_allclose(times, (np.arange(FRAMES) + 1) / fps)
-    last = meshio.read(hula_meshes / f"cloth_{FRAMES - 1:05d}.vtu").points
+        times = [reader.read_data(k)[0] for k in range(WRITTEN)]
+    np.testing.assert_allclose(times, np.arange(WRITTEN) / fps)
+    last = meshio.read(hula_meshes / f"cloth_{FRAMES:05d}.vtu").points
     np.testing.assert_allclose(points, meshio.read(hula_meshes / "cloth_00000.vtu").points,
                                atol=1e-5)
     assert not np.allclose(points, last)
     with meshio.xdmf.TimeSeriesReader(hula_meshes / "body.xdmf") as reader:
-        assert reader.num_steps == FRAMES
+        assert reader.num_steps == WRITTEN
         assert reader.read_points_cells()[0].shape == (body_counts()[0], 3)
 
 
@@ -160,5 +161,5 @@ def test_stale_frames_of_a_longer_run_are_removed(tmp_path):
     (meshes / "cloth_00007.ply").write_text("old")
     cli.simulate("skirt", ["cloth.resolution=[6,3]"], 1, str(tmp_path), None, True,
                       meshes=("ply",))
-    assert sorted(p.name for p in meshes.iterdir()) == ["cloth_00000.ply"]
+    assert sorted(p.name for p in meshes.iterdir()) == ["cloth_00000.ply", "cloth_00001.ply"]
     assert Path(tmp_path / "stats.json").exists()

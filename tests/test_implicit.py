@@ -30,8 +30,11 @@ class SheetWithBar:
                                      "cloth.material.bend_stiffness=0.01"))
         garment = build_garment(scene.cloth, scene.material)
         self.model = Model(garment, "f64", 1.0)  # with dashpots
+        # particle contact only: its Jacobian is exact (tests/test_surface_contact.py has the
+        # surface samples')
         physics = assemble(self.model, [(CapsuleContact, CollisionSettings(
-            stiffness=1e4, damping=0.3, friction=0.0, thickness=0.01))], capsule_radius=[0.08])
+            stiffness=1e4, damping=0.3, friction=0.0, thickness=0.01, surface=False))],
+            capsule_radius=[0.08])
         physics.control.capsule_track.hold(np.array([[-0.6, 1.3, 0.0], [0.6, 1.3, 0.0]]))
         self.forces = physics.forces
         self.state = self.model.state()
@@ -131,7 +134,7 @@ class MovingSheet:
         effects = [(Gravity, GravitySettings()), (Drag, DragSettings()),
                    (Wind, WindSettings(gusts=0.5)),
                    (CapsuleContact, CollisionSettings(stiffness=1e4, damping=0.3, friction=0.4,
-                                                      thickness=0.01)),
+                                                      thickness=0.01, surface=False)),
                    (GroundContact, GroundSettings(height=0.68, stiffness=1e4, friction=0.4))]
         self.physics = assemble(self.model, effects, capsule_radius=[0.08])
         self.physics.control.capsule_track.hold(np.array([[-0.6, 1.3, 0.0], [0.6, 1.3, 0.0]]))
@@ -176,7 +179,7 @@ def moving():
 def test_the_precomputed_operator_equals_the_jacobian_products(moving):
     """The blocks the CG product gathers (n, a, b per spring, L_i per particle) give the same
     A·u as the Jacobian products that the finite-difference test checks, and the preconditioner
-    is A's diagonal."""
+    inverts A's 3×3 diagonal blocks."""
     integrator = BackwardEuler(moving.forces, moving.physics.control)
     moving.start()
     integrator._start_candidate(moving.state, moving.t, moving.h)
@@ -193,14 +196,14 @@ def test_the_precomputed_operator_equals_the_jacobian_products(moving):
         np.testing.assert_allclose(moving.operator(integrator, u), expected,
                                    atol=1e-12 * np.abs(expected).max())
     n = moving.model.particle_count
-    diagonal = np.empty((n, 3))
+    blocks = np.empty((n, 3, 3))
     for c in range(3):
         for i in range(n):
             u = np.zeros((n, 3))
             u[i, c] = 1.0
-            diagonal[i, c] = moving.reference_operator(integrator, u)[i, c]
-    np.testing.assert_allclose(1.0 / integrator.inverse_diagonal.to_numpy(), diagonal,
-                               rtol=1e-12)
+            blocks[i, :, c] = moving.reference_operator(integrator, u)[i]
+    np.testing.assert_allclose(np.linalg.inv(integrator.inverse_block.to_numpy()), blocks,
+                               rtol=1e-10, atol=1e-12 * np.abs(blocks).max())
 
 
 def stops_within_the_cold_start_tolerance(integrator, scratch) -> bool:
@@ -211,9 +214,11 @@ def stops_within_the_cold_start_tolerance(integrator, scratch) -> bool:
     integrator.evaluate_operator(integrator.delta_v, scratch)
     rhs = integrator.rhs.to_numpy() * free
     residual = rhs - scratch.to_numpy() * free
-    preconditioner = integrator.inverse_diagonal.to_numpy()
-    return np.sum(residual ** 2 * preconditioner) <= \
-        (1.01 * integrator.tolerance) ** 2 * np.sum(rhs ** 2 * preconditioner)
+    preconditioner = integrator.inverse_block.to_numpy()
+
+    def norm_sq(r):
+        return np.einsum("ik,ikl,il->", r, preconditioner, r)
+    return norm_sq(residual) <= (1.01 * integrator.tolerance) ** 2 * norm_sq(rhs)
 
 
 def run_steps(integrator, state, state_out, x, v, t, h, steps, scratch):
@@ -290,12 +295,14 @@ def test_conjugate_gradients_reach_their_tolerance_at_a_sixtieth_of_a_second(sce
 
 
 def test_implicit_hula_at_one_step_per_frame_stays_finite_and_unstretched():
-    scene = load_scene("hula", ("simulation.integrator=implicit", "simulation.dt=0.034"))
+    """The paper's soft skirt at one backward Euler step per frame (the whole 5 s): the legs,
+    which cannot pass between its particles, stretch it to 13 % at moments."""
+    scene = load_scene("hula-paper", ("simulation.integrator=implicit", "simulation.dt=0.034"))
     simulation = Simulation(scene)
     record = simulation.run(scene.frame_count)
     assert simulation.time_step.substeps_per_frame == 1
     assert record.retries == 0
-    assert record.max_strain < 0.10
+    assert record.max_strain < 0.15
     assert record.max_penetration < 0.01
 
 
@@ -339,7 +346,7 @@ def test_guard_rolls_back_and_halves_the_step_instead_of_writing_nan():
     assert record.retries >= 1
     assert simulation.time_step.dt < too_big / 1.5
     stats = simulation.stats(record)
-    assert stats["retries"] == record.retries and len(stats["per_frame"]) == 6
+    assert stats["retries"] == record.retries and len(stats["per_frame"]) == 7  # frames 0–6
     import json
     json.dumps(stats, allow_nan=False)
 

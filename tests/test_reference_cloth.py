@@ -22,7 +22,7 @@ from systems import assemble
 
 GRAVITY = GravitySettings(g=9.81)
 DRAG = DragSettings(coefficient=1.3, air_density=1.2)
-CONTACT = CollisionSettings(stiffness=2500.0, damping=0.5, friction=0.3, thickness=0.01)
+CONTACT = CollisionSettings(stiffness=2500.0, damping=0.5, friction=0.3, thickness=0.01, surface=False)
 RADIUS = 0.28  # m; the axis runs along x through the middle row of the sheet
 CAPSULE_A, CAPSULE_B = np.array([-0.3, 1.1, 0.04]), np.array([0.3, 1.05, -0.02])
 CAPSULE_VELOCITY_A, CAPSULE_VELOCITY_B = np.array([0.2, -0.1, 0.4]), np.array([-0.3, 0.0, 0.5])

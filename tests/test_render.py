@@ -22,13 +22,14 @@ from taichi_cloth.render.surfaces import BodySurface, ClothSurface
 from taichi_cloth.render.texture import DEFAULT_TEXTURE, sample_texture, texture_path
 
 REPO = Path(__file__).resolve().parent.parent
-SMALL = ["cloth.resolution=[16,8]"]
+SMALL = ["cloth.resolution=[16,8]", "body.ease_in=0.1"]  # the dance at full swing by frame 3
 FRAMES, WIDTH, HEIGHT = 3, 160, 120
+WRITTEN = FRAMES + 1  # frame 0 (the settled start) and the simulated frames
 
 
 @pytest.fixture(scope="module")
 def hula(tmp_path_factory):
-    """3 frames of hula at 160×120 with an mp4; the folder it wrote."""
+    """3 frames of hula (and frame 0) at 160×120 with an mp4; the folder it wrote."""
     out = tmp_path_factory.mktemp("hula")
     had_imgui = (Path.cwd() / "imgui.ini").exists()
     try:
@@ -42,13 +43,13 @@ def hula(tmp_path_factory):
 
 def frames(out: Path) -> list[np.ndarray]:
     return [iio.imread(out / "frames" / f"frame_{k:05d}.png").astype(float) / 255
-            for k in range(FRAMES)]
+            for k in range(WRITTEN)]
 
 
 def test_render_writes_one_png_per_frame_of_the_requested_size(hula):
     out, _ = hula
     assert sorted(p.name for p in (out / "frames").iterdir()) == \
-        [f"frame_{k:05d}.png" for k in range(FRAMES)]
+        [f"frame_{k:05d}.png" for k in range(WRITTEN)]
     for image in frames(out):
         assert image.shape == (HEIGHT, WIDTH, 3)
 
@@ -84,7 +85,7 @@ def test_body_is_visible(hula):
 
 def test_mp4_reads_back_with_every_frame_at_the_frame_size(hula):
     reader = imageio.v2.get_reader(hula[0] / "hula.mp4")
-    assert reader.count_frames() == FRAMES
+    assert reader.count_frames() == WRITTEN
     assert reader.get_meta_data()["size"] == (WIDTH, HEIGHT)
     assert reader.get_meta_data()["fps"] == load_scene("hula").scene.fps
 

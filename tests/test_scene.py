@@ -21,7 +21,7 @@ def test_every_shipped_scene_loads_and_runs_a_few_frames(name):
     simulation = Simulation(scene)
     record = simulation.run(2)
     stats = simulation.stats(record)
-    assert stats["finite"] and stats["frames"] == 2
+    assert stats["finite"] and stats["frames"] == 3  # frame 0 (the start) and 2 simulated
     json.dumps(stats, allow_nan=False)
     assert set(stats["effects"]) <= set(scene.effects)
 
@@ -114,9 +114,10 @@ def test_cli_simulate_writes_stats(tmp_path):
                      "--out", str(tmp_path), "--quiet")
     assert result.returncode == 0, result.stderr
     stats = json.loads((tmp_path / "stats.json").read_text())
-    assert stats["frames"] == 2 and stats["particles"] == 36 and stats["finite"]
+    assert stats["frames"] == 3 and stats["particles"] == 36 and stats["finite"]
     assert stats["effects"] == ["gravity", "damping", "bending", "drag"]
-    assert [f["frame"] for f in stats["per_frame"]] == [0, 1]
+    assert [f["frame"] for f in stats["per_frame"]] == [0, 1, 2]
+    assert [f["t"] for f in stats["per_frame"]] == pytest.approx([0, 1 / 30, 2 / 30])
 
 
 def test_cli_unstable_run_exits_3_without_writing_nan(tmp_path):
@@ -125,10 +126,12 @@ def test_cli_unstable_run_exits_3_without_writing_nan(tmp_path):
                      "--out", str(tmp_path))
     assert result.returncode == 3
     message = result.stderr.strip()
-    assert "frame 0" in message and "euler" in message and "after 4 halvings" in message
+    assert "frame 1" in message and "euler" in message and "after 4 halvings" in message
     assert "dt = 0.000520833 s" in message  # 1/30 s / 4 substeps, halved 4 times
     assert "Traceback" not in result.stderr
-    assert not (tmp_path / "stats.json").exists()
+    stats = json.loads((tmp_path / "stats.json").read_text(),
+                       parse_constant=lambda name: pytest.fail(f"{name} in stats.json"))
+    assert stats["stopped"] == "unstable" and [f["frame"] for f in stats["per_frame"]] == [0]
 
 
 def test_a_simulation_allocates_its_fields_in_few_snode_trees():

@@ -17,7 +17,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from taichi_cloth.errors import InputError
-from taichi_cloth.cloth.topology import grid_springs, grid_triangles, hinge_stencils, lumped_mass
+from taichi_cloth.cloth.topology import (grid_springs, grid_triangles, hinge_stencils,
+                                          lumped_mass, triangle_edges)
 from taichi_cloth.config.materials import Material, spring_constants
 from taichi_cloth.config.scene import ClothConfig
 
@@ -57,6 +58,11 @@ class Garment:
         return len(self.positions)
 
     @property
+    def edges(self) -> np.ndarray:
+        """The mesh's edges (E, 2), each once, lower index first, sorted."""
+        return triangle_edges(self.triangles)
+
+    @property
     def spring_count(self) -> int:
         return sum(len(s) for s in self.springs.values())
 
@@ -85,6 +91,22 @@ def skirt_positions(cloth: ClothConfig, waist_height: float) -> np.ndarray:
     z = radius[:, None] * np.sin(angle)[None, :]
     y = np.repeat(ring_height[:, None], around, axis=1)
     return np.stack([x, y, z], axis=-1).reshape(-1, 3)
+
+
+def settling_ripple(garment: "Garment", folds: int = 8, amplitude: float = 0.01) -> np.ndarray:
+    """A displacement (N, 3) [m] that lets a wrap-around garment (a skirt) buckle into
+    ``folds`` folds when it settles: radial about the vertical axis, amplitude·s²·sin(folds·θ)
+    with s the fraction of the way from the first row (the waist, s = 0) to the last (the hem,
+    s = 1); zero for other garments. A cone cut from flat fabric is an equilibrium, unstable but
+    exact: without a push it would stand as a cone."""
+    if not garment.periodic:
+        return np.zeros_like(garment.positions)
+    columns, rows = garment.columns, garment.rows
+    angle = 2 * np.pi * np.arange(columns) / columns
+    fraction = np.linspace(0.0, 1.0, rows)
+    radial = amplitude * fraction[:, None] ** 2 * np.sin(folds * angle)[None, :]
+    outward = np.stack([np.cos(angle), np.zeros(columns), np.sin(angle)], axis=1)
+    return (radial[:, :, None] * outward[None, :, :]).reshape(-1, 3)
 
 
 def disc_positions(cloth: ClothConfig) -> np.ndarray:

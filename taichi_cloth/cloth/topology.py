@@ -70,3 +70,9 @@ def hinge_stencils(triangles: np.ndarray) -> np.ndarray:
             else:
                 first_seen[key] = (a, b, opposite)
     return np.array(stencils, dtype=np.int32).reshape(-1, 4)
+
+
+def triangle_edges(triangles: np.ndarray) -> np.ndarray:
+    """The mesh's edges (E, 2), each once, lower index first, sorted."""
+    pairs = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
+    return np.unique(np.sort(pairs, axis=1), axis=0)

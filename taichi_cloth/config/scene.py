@@ -51,6 +51,11 @@ class SimulationConfig:
                                doc="particle speed [m/s] at which a frame counts as exploded")
     max_retries: int = setting(4, "int", low=0, high=20,
                                doc="times a bad frame is redone with the step halved")
+    settle: float = setting(0.0, "float", low=0.0, high=60.0,
+                            doc="seconds at most that the garment settles on the body, held "
+                                "still, before frame 0 (0: start from the pattern shape)")
+    settle_speed: float = setting(0.005, "float", low=0.0, low_inclusive=False,
+                                  doc="mean particle speed [m/s] at which settling stops")
     cg_tolerance: float = setting(1e-3, "float", low=0.0, low_inclusive=False,
                                   doc="implicit integrator: relative residual of conjugate gradients")
     cg_max_iterations: int = setting(500, "int", low=1, high=100000)

@@ -24,7 +24,7 @@ Genesis' ``force_fields.py``). What an effect declares:
 - ``uniform_acceleration``: (a_x, a_y, a_z) [m/s²] when its force is m·a for every free particle
   (gravity), which lets a grid cloth step in SIMD lanes; None otherwise.
 - ``stability_modes()``: the (k̂ [1/s²], ζ) of each stiff mode it adds, for ``dt = "auto"``.
-- ``potential_energy(x, mass)`` [J], ``max_penetration(x)`` [m] and ``frame_metrics(x)`` (more
+- ``potential_energy(x, mass)`` [J], ``penetration_depths(points)`` [m] and ``frame_metrics(x)`` (more
   per-frame values for ``stats.json``, by name): its metrics.
 - ``upload()``: fill its fields once every effect has allocated its own (one SNode tree).
 - ``post_step``: an object with a ``@ti.func apply(state, t)`` to run after every substep (the
@@ -78,8 +78,9 @@ class Effect:
         """Fill the fields allocated in ``__init__``: none here."""
 
     @ti.func
-    def prepare(self, t):
-        """Per-evaluation work before the particle loops: nothing here."""
+    def prepare(self, x, v, t):
+        """Per-evaluation work at positions x, velocities v and time t [s], before the
+        particle loops: nothing here."""
 
     def stability_modes(self) -> list[tuple[float, float]]:
         """(k̂ [1/s²], ζ) of the stiff modes this effect adds: none here."""
@@ -89,9 +90,10 @@ class Effect:
         """Potential energy [J] of positions x [m] (N, 3) with masses [kg]: none here."""
         return 0.0
 
-    def max_penetration(self, x: np.ndarray) -> float:
-        """Deepest penetration [m] of positions x at the end of the frame: none here."""
-        return 0.0
+    def penetration_depths(self, points: np.ndarray) -> np.ndarray | None:
+        """How deep [m] each of the points (P, 3) [m] lies inside the effect's collider at the
+        end of the frame (0 outside; the margin does not count), or None without a collider."""
+        return None
 
     def frame_metrics(self, x: np.ndarray) -> dict:
         """Further per-frame metrics of positions x, by name: none here."""

@@ -22,7 +22,10 @@ pattern. E is quadratic in x: its force and Hessian are exact and constant,
     f_a = −w_a·[B_e·(w·x) + c_e·(w·v)],      ∂f_a/∂x_b = −B_e·w_a·w_b·I,     ∂f_a/∂v_b = −c_e·w_a·w_b·I,
 
 with the Rayleigh dashpot c_e = β·B_e of the springs when the scene declares ``damping``
-(β: the model's ``dashpot_time``). Each particle gathers over its own stencils (a fixed order).
+(β: the model's ``dashpot_time``). H = Σ_e B_e·w_e·w_eᵀ is assembled once, on the host, into
+CSR rows (``hessian_rows``: each particle's 2-ring, about 18 entries on a regular grid), and
+force, products and diagonal gather over a particle's own row in a fixed order: one read per
+neighbour instead of four per stencil around it (12 stencils on a regular grid).
 
 Warp and weft: each hinge takes the garment's ``hinge_rigidity``, B_e = B_weft·cos²ψ +
 B_warp·sin²ψ for a rest edge at angle ψ to the warp (``cloth.garment.hinge_rigidity``, beside
@@ -35,7 +38,6 @@ import numpy as np
 import taichi as ti
 
 from taichi_cloth.effects.base import Effect, EffectContext
-from taichi_cloth.gather import incidence_lists
 from taichi_cloth.settings import setting
 
 
@@ -62,6 +64,26 @@ def hinge_weights(positions: np.ndarray, stencils: np.ndarray) -> np.ndarray:
     return weights / np.sqrt(areas)[:, None]
 
 
+def hessian_rows(stencils: np.ndarray, weights: np.ndarray, rigidity: np.ndarray,
+                 particle_count: int):
+    """The constant bending Hessian H = Σ_e B_e·w_e·w_eᵀ (times I₃) [N/m] as CSR rows: (start
+    (N+1,), neighbour (K,), coefficient H_ij (K,)) of each row's off-diagonal entries, neighbours
+    ascending, and the diagonal H_ii (N,). Summed in float64 in a fixed order."""
+    rows = np.repeat(stencils, 4, axis=1).ravel()
+    columns = np.tile(stencils, (1, 4)).ravel()
+    values = (rigidity[:, None, None] * weights[:, :, None] * weights[:, None, :]).ravel()
+    keys, inverse = np.unique(rows.astype(np.int64) * particle_count + columns,
+                              return_inverse=True)
+    summed = np.bincount(inverse.ravel(), values, minlength=len(keys))
+    row, column = keys // particle_count, keys % particle_count
+    on_diagonal = row == column
+    diagonal = np.zeros(particle_count)
+    diagonal[row[on_diagonal]] = summed[on_diagonal]
+    off = ~on_diagonal
+    start = np.searchsorted(row[off], np.arange(particle_count + 1)).astype(np.int32)
+    return start, column[off].astype(np.int32), summed[off], diagonal
+
+
 @ti.data_oriented
 class Bending(Effect):
     """Curvature bending of the garment (module docstring)."""
@@ -79,75 +101,56 @@ class Bending(Effect):
         self.host_stencils = stencils
         self.host_weights = hinge_weights(garment.positions, stencils)
         self.host_rigidity = settings.scale * garment.hinge_rigidity
-        self.host_damping = (model.dashpot_time or 0.0) * self.host_rigidity
-        start, item, slot = incidence_lists(stencils, model.particle_count)
-        count, real = max(1, len(stencils)), model.real
-        self.stencil = ti.Vector.field(4, ti.i32, count)
-        self.weight = ti.Vector.field(4, real, count)
-        self.rigidity = ti.field(real, count)
-        self.damping = ti.field(real, count)
-        self.particle_stencil_start = ti.field(ti.i32, model.particle_count + 1)
-        self.particle_stencil = ti.field(ti.i32, max(1, len(item)))
-        self.particle_slot = ti.field(ti.i32, max(1, len(item)))
-        self._tables = (stencils, start, item, slot)
+        self.host_row_start, self.host_row_neighbor, self.host_row_coefficient, \
+            self.host_diagonal = hessian_rows(stencils, self.host_weights, self.host_rigidity,
+                                              model.particle_count)
+        real = model.real
+        entries = max(1, len(self.host_row_neighbor))
+        self.row_start = ti.field(ti.i32, model.particle_count + 1)
+        self.row_neighbor = ti.field(ti.i32, entries)
+        self.row_coefficient = ti.field(real, entries)
+        self.diagonal = ti.field(real, model.particle_count)
+        self.dashpot_time = model.dashpot_time or 0.0  # β [s]: c_e = β·B_e
 
     def upload(self) -> None:
         """Fill the fields (after every allocation: one SNode tree, ``physics/control.py``)."""
-        stencils, start, item, slot = self._tables
         real = self.model.numpy_real
-        if len(stencils):
-            self.stencil.from_numpy(stencils)
-            self.weight.from_numpy(self.host_weights.astype(real))
-            self.rigidity.from_numpy(self.host_rigidity.astype(real))
-            self.damping.from_numpy(self.host_damping.astype(real))
-            self.particle_stencil.from_numpy(item)
-            self.particle_slot.from_numpy(slot)
-        self.particle_stencil_start.from_numpy(start)
+        if len(self.host_row_neighbor):
+            self.row_neighbor.from_numpy(self.host_row_neighbor)
+            self.row_coefficient.from_numpy(self.host_row_coefficient.astype(real))
+        self.row_start.from_numpy(self.host_row_start)
+        self.diagonal.from_numpy(self.host_diagonal.astype(real))
 
     @ti.func
-    def _stencil_sum(self, u, s):
-        """Σ_a w_a·u_a over stencil s, as Σ_a w_a·(u_a − u_0) (the same, since Σ w_a = 0): on
-        positions the differences keep f32 from cancelling large coordinates."""
-        origin = u[self.stencil[s][0]]
+    def _row_product(self, u, i_p):
+        """(H·u)_i = Σ_j H_ij·(u_j − u_i) over the row's off-diagonal entries (the same as
+        Σ_j H_ij·u_j, since each row of H sums to zero): on positions the differences keep f32
+        from cancelling large coordinates."""
         total = ti.Vector.zero(self.model.real, 3)
-        for a in ti.static(range(1, 4)):
-            total += self.weight[s][a] * (u[self.stencil[s][a]] - origin)
+        u_i = u[i_p]
+        for k in range(self.row_start[i_p], self.row_start[i_p + 1]):
+            total += self.row_coefficient[k] * (u[self.row_neighbor[k]] - u_i)
         return total
 
     @ti.func
     def force(self, model, x, v, i_p, t):
-        f = ti.Vector.zero(model.real, 3)
-        for k in range(self.particle_stencil_start[i_p], self.particle_stencil_start[i_p + 1]):
-            s = self.particle_stencil[k]
-            along = self.rigidity[s] * self._stencil_sum(x, s)
-            if ti.static(model.has_dashpots):
-                along += self.damping[s] * self._stencil_sum(v, s)
-            f -= self.weight[s][self.particle_slot[k]] * along
+        """f_i = −(H·x)_i − β·(H·v)_i [N]."""
+        f = -self._row_product(x, i_p)
+        if ti.static(model.has_dashpots):
+            f -= self.dashpot_time * self._row_product(v, i_p)
         return f
 
     @ti.func
     def coupled_products(self, model, u, i_p):
-        """((∂f/∂x)·u, (∂f/∂v)·u) at particle i_p: −w_a·B_e·(w·u), −w_a·c_e·(w·u) summed over
-        its stencils."""
-        stiffness = ti.Vector.zero(model.real, 3)
-        damping = ti.Vector.zero(model.real, 3)
-        for k in range(self.particle_stencil_start[i_p], self.particle_stencil_start[i_p + 1]):
-            s = self.particle_stencil[k]
-            spread = self.weight[s][self.particle_slot[k]] * self._stencil_sum(u, s)
-            stiffness -= self.rigidity[s] * spread
-            damping -= self.damping[s] * spread
-        return stiffness, damping
+        """((∂f/∂x)·u, (∂f/∂v)·u) at particle i_p: −(H·u)_i and −β·(H·u)_i."""
+        stiffness = -self._row_product(u, i_p)
+        return stiffness, self.dashpot_time * stiffness
 
     @ti.func
     def coupled_diagonal(self, model, i_p):
-        """The diagonal (scalar, times I) of ∂f_i/∂x_i and ∂f_i/∂v_i: −Σ w_a²·B_e, −Σ w_a²·c_e."""
-        stiffness, damping = model.real(0.0), model.real(0.0)
-        for k in range(self.particle_stencil_start[i_p], self.particle_stencil_start[i_p + 1]):
-            s = self.particle_stencil[k]
-            w_sq = self.weight[s][self.particle_slot[k]] ** 2
-            stiffness -= w_sq * self.rigidity[s]
-            damping -= w_sq * self.damping[s]
-        return stiffness, damping
+        """The diagonal (scalar, times I) of ∂f_i/∂x_i and ∂f_i/∂v_i: −H_ii and −β·H_ii."""
+        stiffness = -self.diagonal[i_p]
+        return stiffness, self.dashpot_time * stiffness
 
     def energy(self, x: np.ndarray) -> float:
         """E = ½ Σ_e B_e ‖Σ_a w_a x_a‖² [J] of positions x [m] (N, 3)."""
@@ -163,19 +166,14 @@ class Bending(Effect):
         return {"bending_energy": self.energy(x)}
 
     def rest_stiffness_product(self, u: np.ndarray) -> np.ndarray:
-        """K·u of the bending Hessian (−∂f/∂x, positive semi-definite) [N], for ω_max."""
-        spread = self.host_rigidity[:, None] * np.einsum("ha,hak->hk", self.host_weights,
-                                                         u[self.host_stencils])
-        product = np.zeros_like(u)
-        for a in range(4):
-            np.add.at(product, self.host_stencils[:, a], self.host_weights[:, a, None] * spread)
+        """K·u = H·u of the bending Hessian (−∂f/∂x, positive semi-definite) [N], for ω_max."""
+        owner = np.repeat(np.arange(len(u)), np.diff(self.host_row_start))
+        product = self.host_diagonal[:, None] * u
+        np.add.at(product, owner, self.host_row_coefficient[:, None] * u[self.host_row_neighbor])
         return product
 
     def stiffness_row_sums(self, particle_count: int) -> np.ndarray:
-        """Σ_b |K_ab| per particle a [N/m] (a Gershgorin bound on the Hessian's rows)."""
-        row = np.abs(self.host_weights) * (self.host_rigidity
-                                           * np.abs(self.host_weights).sum(axis=1))[:, None]
-        sums = np.zeros(particle_count)
-        for a in range(4):
-            np.add.at(sums, self.host_stencils[:, a], row[:, a])
-        return sums
+        """Σ_b |H_ab| per particle a [N/m] (a Gershgorin bound on the Hessian's rows)."""
+        owner = np.repeat(np.arange(particle_count), np.diff(self.host_row_start))
+        return np.abs(self.host_diagonal) + np.bincount(
+            owner, np.abs(self.host_row_coefficient), minlength=particle_count)

@@ -1,5 +1,19 @@
 """Contact with the body's capsules (seed §2.6): the penalty force of ``penalty`` against every
-bone capsule, posed once per force evaluation from the prescribed motion (``physics.control``)."""
+bone capsule, posed once per force evaluation from the prescribed motion (``physics.control``).
+
+Contact on the whole surface (``surface = true``, the default): a capsule thinner than the
+particle spacing (a leg between the particles of a coarse skirt, a bar under a drape) passes
+between particles that alone feel contact. Every edge midpoint and triangle centroid is then a
+contact sample too, a point p = Σ_a w_a·x_a of its 2 or 3 particles (w = ½ or ⅓), with velocity
+Σ w_a·v_a and mass m_s = Σ w_a·m_a. Its penalty energy E_s(p) gives each of its particles the
+force w_a·F_s (∂p/∂x_a = w_a·I), so momentum and the energy balance hold. A pass per force
+evaluation (``prepare``) computes every sample's F_s into a field; each particle then gathers
+its own share over its samples (``gather.incidence_lists``, a fixed order). For the implicit
+solver each particle's block keeps w_a²·∂F_s/∂p of its samples and drops the couplings between
+the particles of a sample (a documented approximation: the Newton step stays a descent step, the
+contact stiffness on the diagonal is exact). With samples, a particle feels the contact
+stiffness of its own and of its samples: Gershgorin bounds the mode by k̂·(1 + Σ w_a·m_s/m_a),
+which ``stability_modes`` reports for ``dt = "auto"``."""
 
 from dataclasses import dataclass
 
@@ -7,9 +21,10 @@ import numpy as np
 import taichi as ti
 
 from taichi_cloth.effects.base import Effect, EffectContext
-from taichi_cloth.effects.penalty import (closest_on_segment, max_capsule_penetration,
+from taichi_cloth.effects.penalty import (capsule_penetration_depths, closest_on_segment,
                                           normal_force_magnitude, penalty_damping_block,
                                           penalty_force)
+from taichi_cloth.gather import incidence_lists
 from taichi_cloth.settings import setting
 
 
@@ -21,6 +36,8 @@ class CollisionSettings:
     friction: float = setting(0.3, "float", low=0.0, doc="Coulomb coefficient μ")
     thickness: float = setting(0.005, "float", low=0.0, doc="contact margin around capsules, m")
     mode: str = setting("penalty", "str", choices=("penalty", "penalty+projection"))
+    surface: bool = setting(True, "bool", doc="edge midpoints and triangle centroids feel "
+                                              "contact too (module docstring)")
 
 
 @ti.data_oriented
@@ -59,16 +76,83 @@ class CapsuleContact(Effect):
         self.capsule_center = ti.Vector.field(3, model.real, self.capsule_count)
         self.capsule_reach_sq = ti.field(model.real, self.capsule_count)
         self._host_radius = np.asarray(capsule_radius, dtype=track.numpy_real)
+        self.surface = config.surface and len(model.garment.triangles) > 0
+        self.stiffness_factor = 1.0
+        if self.surface:
+            self._allocate_samples(model)
+
+    def _allocate_samples(self, model) -> None:
+        """The surface samples (edge midpoints, then triangle centroids) as 3 particles and 3
+        weights each (an edge repeats its first particle with weight 0), their force field, and
+        each particle's CSR list of (sample, its weight there)."""
+        triangles = model.garment.triangles
+        edges = model.garment.edges
+        corners = np.concatenate([np.column_stack([edges, edges[:, 0]]), triangles]).astype(np.int32)
+        weights = np.concatenate([np.tile([0.5, 0.5, 0.0], (len(edges), 1)),
+                                  np.full((len(triangles), 3), 1.0 / 3.0)])
+        # an edge's third corner listed as a particle past the last, so that it sorts out
+        listed = np.concatenate([np.column_stack([edges, np.full(len(edges), model.particle_count)]),
+                                 triangles])
+        start, item, slot = incidence_lists(listed, model.particle_count + 1)
+        start = start[:model.particle_count + 1]
+        item, slot = item[:start[-1]], slot[:start[-1]]
+        mass = model.garment.mass
+        sample_mass = np.einsum("sa,sa->s", weights, mass[corners])
+        share = np.zeros(model.particle_count)
+        np.add.at(share, corners.ravel(), (weights * sample_mass[:, None]).ravel())
+        free = mass > 0
+        self.stiffness_factor = float(np.max(1.0 + share[free] / mass[free])) if free.any() else 1.0
+        self.sample_count = len(corners)
+        real = model.real
+        self.sample_corners = ti.Vector.field(3, ti.i32, self.sample_count)
+        self.sample_weights = ti.Vector.field(3, real, self.sample_count)
+        self.sample_mass = ti.field(real, self.sample_count)
+        self.sample_force = ti.Vector.field(3, real, self.sample_count)
+        self.particle_sample_start = ti.field(ti.i32, model.particle_count + 1)
+        self.particle_sample = ti.field(ti.i32, max(1, len(item)))
+        self.particle_sample_weight = ti.field(real, max(1, len(item)))  # w_a of the entry
+        self._sample_tables = (corners, weights, sample_mass, start, item, weights[item, slot])
 
     def upload(self) -> None:
-        """The capsule radii into their field (after every allocation: one SNode tree)."""
+        """The capsule radii (and the surface samples) into their fields (after every
+        allocation: one SNode tree)."""
         self.capsule_radius.from_numpy(self._host_radius)
+        if self.surface:
+            real = self.model.numpy_real
+            corners, weights, sample_mass, start, item, item_weight = self._sample_tables
+            self.sample_corners.from_numpy(corners)
+            self.sample_weights.from_numpy(weights.astype(real))
+            self.sample_mass.from_numpy(sample_mass.astype(real))
+            self.particle_sample_start.from_numpy(start)
+            self.particle_sample.from_numpy(item)
+            self.particle_sample_weight.from_numpy(item_weight.astype(real))
 
     @ti.func
-    def prepare(self, t):
+    def prepare(self, x, v, t):
         """Pose every capsule at time t [s] once, before the particle loops: endpoints a, b and
         their velocities from the track (two Hermite evaluations per capsule instead of four per
-        particle and capsule), and the bounding sphere of ``near``."""
+        particle and capsule), and the bounding sphere of ``near``; then with ``surface`` every
+        sample's contact force at (x, v)."""
+        self._pose(t)
+        if ti.static(self.surface):
+            for i_s in range(self.sample_count):
+                position, velocity = self._sample_state(x, v, i_s)
+                self.sample_force[i_s] = self._contact_force(self.sample_mass[i_s], position,
+                                                             velocity)
+
+    @ti.func
+    def _sample_state(self, x, v, i_s):
+        """Position [m] and velocity [m/s] of surface sample i_s: Σ w_a·x_a, Σ w_a·v_a."""
+        corners, weights = self.sample_corners[i_s], self.sample_weights[i_s]
+        position = ti.Vector.zero(self.model.real, 3)
+        velocity = ti.Vector.zero(self.model.real, 3)
+        for a in ti.static(range(3)):
+            position += weights[a] * x[corners[a]]
+            velocity += weights[a] * v[corners[a]]
+        return position, velocity
+
+    @ti.func
+    def _pose(self, t):
         real = self.model.real
         for i_c in range(self.capsule_count):
             a, velocity_a = self.track.at(2 * i_c, t)
@@ -102,35 +186,64 @@ class CapsuleContact(Effect):
         return (position - self.capsule_center[i_c]).norm_sqr() < self.capsule_reach_sq[i_c]
 
     @ti.func
-    def force(self, model, x, v, i_p, t):
-        real = model.real
+    def _contact_force(self, mass, position, velocity):
+        """The penalty force [N] on a point of ``mass`` at ``position`` with ``velocity``,
+        summed over the capsules (each first culled by its bounding sphere)."""
+        real = self.model.real
         f = ti.Vector.zero(real, 3)
         for i_c in range(self.capsule_count):
-            if self.near(i_c, x[i_p]):
-                depth, normal, distance, _, _, surface_velocity = self.probe(i_c, x[i_p])
+            if self.near(i_c, position):
+                depth, normal, distance, _, _, surface_velocity = self.probe(i_c, position)
                 if depth > 0 and distance > 0:
-                    f += penalty_force(model.particle_mass[i_p], depth, normal,
-                                       v[i_p] - surface_velocity, real(self.stiffness),
-                                       real(self.damping_ratio), real(self.friction))
+                    f += penalty_force(mass, depth, normal, velocity - surface_velocity,
+                                       real(self.stiffness), real(self.damping_ratio),
+                                       real(self.friction))
+        return f
+
+    @ti.func
+    def force(self, model, x, v, i_p, t):
+        """The particle's own contact and, with ``surface``, w_a·F_s of each of its samples."""
+        f = self._contact_force(model.particle_mass[i_p], x[i_p], v[i_p])
+        if ti.static(self.surface):
+            for k in range(self.particle_sample_start[i_p], self.particle_sample_start[i_p + 1]):
+                i_s = self.particle_sample[k]
+                f += self.particle_sample_weight[k] * self.sample_force[i_s]
         return f
 
     @ti.func
     def local_jacobian(self, model, x, v, i_p, t, definite: ti.template()):
-        """(∂f/∂x, ∂f/∂v) of the penalty on particle i_p:
-        ∂f/∂x = m·k̂·[−n·nᵀ + (d/|x − y|)·P], P = I − n·nᵀ (− â·âᵀ on the cylinder part), friction
-        left out; ∂f/∂v from ``penalty_damping_block``. The curvature term d/|x − y|·P is
+        """(∂f/∂x, ∂f/∂v) of the penalty on particle i_p (``_contact_blocks``) plus, with
+        ``surface``, w_a² times its samples' blocks (the couplings between a sample's particles
+        left out: module docstring)."""
+        stiffness_block, damping_block = self._contact_blocks(
+            model.particle_mass[i_p], x[i_p], v[i_p], definite)
+        if ti.static(self.surface):
+            for k in range(self.particle_sample_start[i_p], self.particle_sample_start[i_p + 1]):
+                i_s = self.particle_sample[k]
+                weight = self.particle_sample_weight[k]
+                position, velocity = self._sample_state(x, v, i_s)
+                sample_stiffness, sample_damping = self._contact_blocks(
+                    self.sample_mass[i_s], position, velocity, definite)
+                stiffness_block += weight * weight * sample_stiffness
+                damping_block += weight * weight * sample_damping
+        return stiffness_block, damping_block
+
+    @ti.func
+    def _contact_blocks(self, mass, position, velocity, definite: ti.template()):
+        """(∂F/∂p, ∂F/∂u) of ``_contact_force`` on a point of ``mass``:
+        ∂F/∂p = m·k̂·[−n·nᵀ + (d/|p − y|)·P], P = I − n·nᵀ (− â·âᵀ on the cylinder part), friction
+        left out; ∂F/∂u from ``penalty_damping_block``. The curvature term d/|p − y|·P is
         positive; ``definite`` drops it. A contact whose normal force is clamped to 0 (the
-        particle leaving fast) exerts nothing and adds nothing: its blocks would make release
+        point leaving fast) exerts nothing and adds nothing: its blocks would make release
         sticky."""
-        real = model.real
+        real = self.model.real
         stiffness_block = ti.Matrix.zero(real, 3, 3)
         damping_block = ti.Matrix.zero(real, 3, 3)
-        mass = model.particle_mass[i_p]
         identity = ti.Matrix.identity(real, 3)
         for i_c in range(self.capsule_count):
-            if self.near(i_c, x[i_p]):
-                depth, normal, distance, s, axis, surface_velocity = self.probe(i_c, x[i_p])
-                relative_velocity = v[i_p] - surface_velocity
+            if self.near(i_c, position):
+                depth, normal, distance, s, axis, surface_velocity = self.probe(i_c, position)
+                relative_velocity = velocity - surface_velocity
                 if depth > 0 and distance > 0 and normal_force_magnitude(
                         mass, depth, relative_velocity.dot(normal), real(self.stiffness),
                         real(self.damping_ratio)) > 0:
@@ -153,7 +266,7 @@ class CapsuleContact(Effect):
         velocity relative to the surface."""
         model = self.model
         x, v = ti.static(state.x, state.v)
-        self.prepare(t)
+        self._pose(t)
         for i_p in range(model.particle_count):
             if model.particle_inv_mass[i_p] > 0:
                 for i_c in range(self.capsule_count):
@@ -165,9 +278,11 @@ class CapsuleContact(Effect):
                             v[i_p] -= inward * normal
 
     def stability_modes(self) -> list[tuple[float, float]]:
-        return [(self.stiffness, self.damping_ratio)]
+        """The penalty's mode, its stiffness raised by the surface samples' share (module
+        docstring)."""
+        return [(self.stiffness * self.stiffness_factor, self.damping_ratio)]
 
-    def max_penetration(self, x: np.ndarray) -> float:
-        """Metres inside any capsule (without the margin) at the end of the frame."""
+    def penetration_depths(self, points: np.ndarray) -> np.ndarray:
+        """Metres inside the deepest capsule (without the margin) at the end of the frame."""
         a, b = self.control.capsule_ends_at_frame_end
-        return max_capsule_penetration(x, a, b, self.control.capsule_radius)
+        return capsule_penetration_depths(points, a, b, self.control.capsule_radius)

@@ -2,6 +2,7 @@
 
 from dataclasses import dataclass
 
+import numpy as np
 import taichi as ti
 
 from taichi_cloth.effects.base import Effect
@@ -31,9 +32,14 @@ class GroundContact(Effect):
     def __init__(self, settings: GroundSettings, context=None):
         super().__init__(settings, context)
         config = settings
+        self.height = config.height
         self.surface_height = config.height + config.thickness
         self.stiffness, self.damping_ratio = config.stiffness, config.damping
         self.friction = config.friction
+
+    def penetration_depths(self, points: np.ndarray) -> np.ndarray:
+        """Metres below the plane (without the margin)."""
+        return np.maximum(self.height - points[:, 1], 0.0)
 
     @ti.func
     def force(self, model, x, v, i_p, t):

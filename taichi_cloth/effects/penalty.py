@@ -36,11 +36,12 @@ def closest_points_numpy(x: np.ndarray, a: np.ndarray, b: np.ndarray):
     return s, closest, np.linalg.norm(x[:, None, :] - closest, axis=-1)
 
 
-def max_capsule_penetration(x: np.ndarray, a: np.ndarray, b: np.ndarray,
-                            radius: np.ndarray) -> float:
-    """Deepest point inside any capsule [m] (0 when none is inside)."""
+def capsule_penetration_depths(x: np.ndarray, a: np.ndarray, b: np.ndarray,
+                               radius: np.ndarray) -> np.ndarray:
+    """How deep [m] each point of x (P, 3) lies inside the capsule it is deepest in (0 when in
+    none), the capsules (a, b) (C, 3) [m] with ``radius`` (C,) [m]."""
     _, _, distance = closest_points_numpy(x, a, b)
-    return float(max(0.0, np.max(radius[None, :] - distance)))
+    return np.maximum(np.max(radius[None, :] - distance, axis=1), 0.0)
 
 
 @ti.func

@@ -82,7 +82,8 @@ def mesh_series(scene: Scene, simulation, directory: Path, formats, body_meshes:
 def run_scene(scene: Scene, frame_count: int, directory: Path, quiet: bool,
               size: tuple[int, int] | None = None, video: str = "", meshes=(),
               body_meshes: bool = False, resume: bool = False) -> int:
-    """Simulate ``frame_count`` frames; per frame render a PNG and a video frame (when ``size``
+    """Write frame 0 (the start, after ``Simulation.settle``) and simulate frames 1 …
+    ``frame_count``; per frame render a PNG and a video frame (when ``size``
     is given) and write meshes; then stats.json and a one-line summary. An interrupted or
     unstable run still leaves stats.json for the frames done (and, interrupted, a checkpoint that
     ``resume`` continues from)."""
@@ -99,13 +100,17 @@ def run_scene(scene: Scene, frame_count: int, directory: Path, quiet: bool,
         checkpoint = load_checkpoint(directory, scene)
         simulation.restore(checkpoint.snapshot)
         first_frame = checkpoint.next_frame
-        previous = json.loads((directory / "stats.json").read_text())["per_frame"]
-        record.frames = [FrameMetrics.from_dict(frame) for frame in previous[:first_frame]]
+        previous = json.loads((directory / "stats.json").read_text())
+        simulation.settle_report = previous.get("settle")
+        record.frames = [FrameMetrics.from_dict(frame)
+                         for frame in previous["per_frame"][:first_frame]]
         record.retries = checkpoint.retries
         record.cg_iterations = checkpoint.cg_iterations.tolist()
-        if first_frame >= frame_count:
+        if first_frame > frame_count:
             raise InputError(f"--resume: frames 0–{first_frame - 1} are done already; ask for "
                              f"more with --frames")
+    else:
+        simulation.settle(record)
     finished = {}  # the last whole frame: its index and host copies of its state
     with contextlib.ExitStack() as stack:
         renderer = append_video = None
@@ -119,11 +124,11 @@ def run_scene(scene: Scene, frame_count: int, directory: Path, quiet: bool,
                 for frame in range(first_frame):
                     append_video(read_png(directory / FRAME_DIR / f"frame_{frame:05d}.png"))
         series = mesh_series(scene, simulation, directory, meshes, body_meshes)
-        progress = stack.enter_context(Progress(scene.name, frame_count - first_frame, quiet))
+        progress = stack.enter_context(Progress(scene.name, frame_count + 1 - first_frame, quiet))
         seconds = {"render": 0.0, "export": 0.0}
 
         def on_frame(frame, metrics):
-            t = simulation.frame_end_time(frame)
+            t = simulation.frame_time(frame)
             started = time.perf_counter()
             if renderer is not None:
                 image = renderer.draw(simulation.state_in.x, t)
@@ -147,11 +152,11 @@ def run_scene(scene: Scene, frame_count: int, directory: Path, quiet: bool,
             mesh.finish()
     if renderer is not None:
         record.wall_seconds["render"] = seconds["render"]
-        remove_stale_frames(directory / FRAME_DIR, "frame", frame_count)
+        remove_stale_frames(directory / FRAME_DIR, "frame", frame_count + 1)
     if series:
         record.wall_seconds["export"] = seconds["export"]
         for mesh, _ in series:
-            remove_stale_frames(directory / MESH_DIR, mesh.name, frame_count)
+            remove_stale_frames(directory / MESH_DIR, mesh.name, frame_count + 1)
     stats = simulation.stats(record)
     if first_frame:
         stats["resumed_at_frame"] = first_frame

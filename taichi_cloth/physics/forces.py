@@ -60,16 +60,17 @@ class Forces:
                      for c in range(3))
 
     @ti.func
-    def prepare_effects(self, t):
-        """The effects' passes at time t [s] (capsule poses), before any particle loop."""
+    def prepare_effects(self, x, v, t):
+        """The effects' passes at (x, v) and time t [s] (capsule poses, contact of the surface
+        samples), before any particle loop."""
         for e in ti.static(range(len(self.effects))):
-            self.effects[e].prepare(t)
+            self.effects[e].prepare(x, v, t)
 
     @ti.func
     def prepare(self, x, v, t):
         """Everything ``particle_force`` reads at (x, v, t) that serves all particles:
         ``prepare_effects``, then on a packed grid the SIMD spring pass."""
-        self.prepare_effects(t)
+        self.prepare_effects(x, v, t)
         if ti.static(self.has_packed):
             self.packed.spring_pass(x, v)
 
@@ -151,7 +152,7 @@ class Forces:
                                    t: ti.f64, definite: ti.template(),
                                    stiffness_out: ti.template(), damping_out: ti.template()):
         """(∂f/∂x)·u and (∂f/∂v)·u for every particle (for tests and diagnostics)."""
-        self.prepare_effects(t)
+        self.prepare_effects(x, v, t)
         for i_p in x:
             stiffness_out[i_p], damping_out[i_p] = self.jacobian_products(
                 x, v, u, i_p, ti.cast(t, self.model.real), definite)

@@ -22,6 +22,15 @@ def stretch_strain(model, positions: np.ndarray) -> np.ndarray:
     return (length - rest) / rest
 
 
+def surface_samples(positions: np.ndarray, edges: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """Points that stand for the whole cloth surface (P, 3) [m]: the particles, the midpoints of
+    the edges (E, 2) and the centroids of the triangles (T, 3), in that order. A capsule can
+    pass between particles; at these spacings it cannot also pass between these samples
+    without one of them inside."""
+    return np.concatenate([positions, positions[edges].mean(axis=1),
+                           positions[triangles].mean(axis=1)])
+
+
 @dataclass
 class FrameMetrics:
     """One frame's measurements (SI units) as they go into ``stats.json``."""
@@ -31,8 +40,10 @@ class FrameMetrics:
     kinetic_energy: float
     potential_energy: float
     max_strain: float
-    max_penetration: float
+    max_penetration: float  # deepest surface sample inside a collider [m]
     center_of_mass: list
+    penetrating_samples: int = 0  # surface samples inside a collider
+    mean_speed: float = 0.0  # of the free particles [m/s]
     cg_iterations: float | None = None  # implicit integrator: mean CG iterations per step
     extra: dict = field(default_factory=dict)  # the effects' own metrics (bending_energy [J])
 
@@ -65,3 +76,7 @@ class RunRecord:
     @property
     def max_penetration(self) -> float:
         return max((f.max_penetration for f in self.frames), default=0.0)
+
+    @property
+    def max_penetrating_samples(self) -> int:
+        return max((f.penetrating_samples for f in self.frames), default=0)

@@ -9,6 +9,8 @@ kernels interpolate both at every substep and RK4 stage (``physics.control``); n
 host inside the substep loop.
 """
 
+import dataclasses
+
 import numpy as np
 
 from taichi_cloth.body.dancer import Body
@@ -51,12 +53,22 @@ class BodyRig:
         self.control.capsule_ends_at_frame_end = (rest.capsule_a, rest.capsule_b)
         return self.control
 
-    def prepare_frame(self, frame: int) -> None:
-        """Pose the body across ``frame`` (t from frame/fps to (frame+1)/fps) and upload it."""
+    def prepare_frame(self, frame: int, still: bool = False) -> None:
+        """Pose the body across the frame interval ``frame`` (t from frame/fps to
+        (frame+1)/fps) and upload it; ``still``: held motionless in its pose at t = 0 (the
+        garment settles on it before the dance)."""
         control = self.control
         first_time = frame * self.frame_duration
         interval = self.frame_duration / SAMPLES_PER_FRAME
-        poses = [self.body.pose(first_time + k * interval) for k in range(self.sample_count)]
+        if still:
+            start = self.body.pose(0.0)
+            zero = np.zeros_like(start.capsule_velocity_a)
+            poses = [dataclasses.replace(
+                start, capsule_velocity_a=zero, capsule_velocity_b=zero,
+                pelvis_velocity=np.zeros(3), pelvis_angular_velocity=np.zeros(3))] \
+                * self.sample_count
+        else:
+            poses = [self.body.pose(first_time + k * interval) for k in range(self.sample_count)]
         capsule_positions = np.stack([np.stack([p.capsule_a, p.capsule_b], axis=1).reshape(-1, 3)
                                       for p in poses])
         capsule_velocities = np.stack([

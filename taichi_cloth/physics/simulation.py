@@ -19,13 +19,14 @@ frame is written.
 """
 
 import dataclasses
+import math
 import time
 from dataclasses import dataclass
 
 import numpy as np
 import taichi as ti
 
-from taichi_cloth.cloth.garment import build_garment
+from taichi_cloth.cloth.garment import build_garment, settling_ripple
 from taichi_cloth.config.scene import Scene, load_scene
 from taichi_cloth.effects import EffectContext, build_effects, model_options
 from taichi_cloth.errors import UnstableError
@@ -33,12 +34,15 @@ from taichi_cloth.physics.control import Control
 from taichi_cloth.physics.forces import Forces
 from taichi_cloth.physics.integrators import INTEGRATORS, make_integrator
 from taichi_cloth.physics.integrators.conjugate_gradient import SolverBreakdown
-from taichi_cloth.physics.metrics import FrameMetrics, RunRecord, spring_energy, stretch_strain
+from taichi_cloth.physics.metrics import (FrameMetrics, RunRecord, spring_energy, stretch_strain,
+                                          surface_samples)
 from taichi_cloth.physics.model import Model
 from taichi_cloth.physics.packed_grid import packed_grid_for
 from taichi_cloth.physics.rig import BodyRig
 from taichi_cloth.physics.timestep import TimeStep, choose_time_step
 from taichi_cloth.runtime import start_taichi
+
+SETTLE_CHECK_INTERVAL = 1.0 / 240.0  # s of settling between two checks of the kinetic energy
 
 
 @dataclass(frozen=True)
@@ -65,6 +69,8 @@ class Simulation:
         self.body_rig = BodyRig(scene) if scene.body is not None else None
         waist_height = self.body_rig.waist_height if self.body_rig is not None else None
         self.garment = build_garment(scene.cloth, scene.material, waist_height, scene.path)
+        self.surface_edges = self.garment.edges
+        self.settle_report = None  # what ``settle`` did (a resumed run copies it back)
         self.model = Model(self.garment, scene.simulation.precision,
                            **model_options(scene.effects))
         if self.body_rig is not None:
@@ -117,9 +123,9 @@ class Simulation:
     def effect_names(self) -> list[str]:
         return self.forces.compiled_names
 
-    def frame_end_time(self, frame: int) -> float:
-        """Simulated time [s] at the end of ``frame`` (0-based)."""
-        return (frame + 1) / self.scene.scene.fps
+    def frame_time(self, frame: int) -> float:
+        """Simulated time [s] of ``frame``: frame 0 is the start (t = 0), frame k is k/fps."""
+        return frame / self.scene.scene.fps
 
     def positions(self) -> np.ndarray:
         return self.state_in.x.to_numpy().astype(np.float64)
@@ -159,32 +165,47 @@ class Simulation:
                    f"{settings.max_speed:g})"
         return None
 
+    def mean_free_speed(self, v: np.ndarray) -> float:
+        """Mean speed [m/s] of the free (unpinned) particles at velocities v (N, 3)."""
+        free = ~self.garment.pinned
+        return float(np.mean(np.linalg.norm(v[free], axis=1))) if free.any() else 0.0
+
     def measure(self, frame: int, x: np.ndarray, v: np.ndarray) -> FrameMetrics:
-        """Metrics of a (checked) state x [m], v [m/s] at the end of ``frame``: energies
-        (kinetic; potential = the effects' + the springs'), strain, penetration, centre of mass."""
+        """Metrics of a (checked) state x [m], v [m/s] at ``frame``: energies (kinetic;
+        potential = the effects' + the springs'), strain, penetration of the whole surface
+        (particles, edge midpoints and triangle centroids: ``metrics.surface_samples``) into
+        every collider, mean speed, centre of mass."""
         mass = self.model.host_mass
         strain = stretch_strain(self.model, x) if self.model.stretch_count else np.zeros(1)
         kinetic = 0.5 * float(np.sum(mass * np.sum(v * v, axis=1)))
         potential = sum(effect.potential_energy(x, mass) for effect in self.effects) \
             + spring_energy(self.model, x)
-        penetration = max((effect.max_penetration(x) for effect in self.effects), default=0.0)
+        samples = surface_samples(x, self.surface_edges, self.garment.triangles)
+        depth = np.zeros(len(samples))
+        for effect in self.effects:
+            inside = effect.penetration_depths(samples)
+            if inside is not None:
+                depth = np.maximum(depth, inside)
         extra = {name: value for effect in self.effects
                  for name, value in effect.frame_metrics(x).items()}
         return FrameMetrics(
-            frame=frame, t=self.frame_end_time(frame), kinetic_energy=kinetic,
+            frame=frame, t=self.frame_time(frame), kinetic_energy=kinetic,
             potential_energy=potential, max_strain=float(np.max(strain)),
-            max_penetration=penetration,
+            max_penetration=float(depth.max(initial=0.0)),
+            penetrating_samples=int(np.count_nonzero(depth)),
+            mean_speed=self.mean_free_speed(v),
             center_of_mass=[float(c) for c in np.sum(mass[:, None] * x, 0) / np.sum(mass)],
             extra=extra)
 
-    def guarded_frame(self, frame: int, record: RunRecord) -> FrameMetrics:
-        """Advance ``frame`` and check it. A bad frame is rolled back and retried with the step
-        halved (the smaller step is kept for the rest of the run), up to
-        ``simulation.max_retries`` times; then ``UnstableError``. Nothing non-finite leaves."""
+    def guarded_frame(self, frame: int, record: RunRecord, still: bool = False) -> FrameMetrics:
+        """Advance to ``frame`` and check it (``still``: a settling frame, ``settle``). A bad
+        frame is rolled back and retried with the step halved (the smaller step is kept for the
+        rest of the run), up to ``simulation.max_retries`` times; then ``UnstableError``.
+        Nothing non-finite leaves."""
         self.backup.copy_from(self.state_in)
         for attempt in range(self.scene.simulation.max_retries + 1):
             try:
-                self.advance_frame(frame, record)
+                self.advance_frame(frame, record, still)
                 x = self.positions()
                 v = self.state_in.v.to_numpy().astype(np.float64)
                 problem = self.state_problem(x, v)
@@ -202,19 +223,21 @@ class Simulation:
         if integrator == "euler":
             advice += "; explicit Euler also needs [effects.damping]"
         halvings = f" after {record.retries} halvings of the step" if record.retries else ""
-        raise UnstableError(f"frame {frame}: the cloth {problem} with integrator '{integrator}' "
+        where = "settling" if still else f"frame {frame}"
+        raise UnstableError(f"{where}: the cloth {problem} with integrator '{integrator}' "
                             f"at dt = {self.time_step.dt:.6g} s{halvings}; {advice}", frame)
 
-    def advance_frame(self, frame: int, record: RunRecord) -> None:
-        """The substeps of ``frame`` (t from frame/fps to (frame+1)/fps), one kernel launch per
-        entry of ``Integrator.launch_counts``. The first launch of each kernel variant compiles
-        it: its wall time goes to ``compile``, the rest to ``simulate``."""
+    def advance_frame(self, frame: int, record: RunRecord, still: bool = False) -> None:
+        """The substeps to ``frame`` (≥ 1: t from (frame − 1)/fps to frame/fps), one kernel
+        launch per entry of ``Integrator.launch_counts``; ``still``: the body held at its pose
+        at t = 0 instead (``settle``). The first launch of each kernel variant compiles it: its
+        wall time goes to ``compile``, the rest to ``simulate``."""
         if self.body_rig is not None:
-            self.body_rig.prepare_frame(frame)
+            self.body_rig.prepare_frame(frame - 1, still)
         dt, substeps = self.time_step.dt, self.time_step.substeps_per_frame
         done = 0
         for count in self.integrator.launch_counts(substeps):
-            t = frame / self.scene.scene.fps + done * dt
+            t = self.frame_time(frame - 1) + done * dt
             variant = self.integrator.kernel_variant(count, self.state_in, self.state_out)
             started = time.perf_counter()
             self.state_in, self.state_out = self.integrator.launch(
@@ -230,14 +253,80 @@ class Simulation:
         ti.sync()
         record.wall_seconds["simulate"] += time.perf_counter() - started
 
+    def settle(self, run_record: RunRecord) -> dict | None:
+        """Let the garment come to rest on the body held still in its pose at t = 0, before
+        the animation (``simulation.settle`` > 0). A skirt first gets a small ripple
+        (``cloth.garment.settling_ripple``: its cone is an unstable equilibrium); then steps
+        of the scene's own integrator and step with kinetic damping (every velocity zeroed
+        whenever the kinetic energy has passed a peak, checked every ``SETTLE_CHECK_INTERVAL``
+        or step, so that each swing ends where it is fastest, near its equilibrium) until the
+        garment is at rest: a frame's worth of steps since the last zeroing, after which the
+        free particles' mean speed is below ``simulation.settle_speed``; for at most ``simulation.settle``
+        simulated seconds. (The unbalanced force is no test of rest: in f32 the rounding of
+        positions alone gives a stiff spring a force of k·ε·|x|.) The state is then the run's
+        frame 0. Returns what it did (simulated seconds, the mean speed [m/s], whether it came
+        to rest, and for the implicit integrator its unconverged CG steps, which then do not
+        count as the run's), or None when off; its compile time goes to ``run_record``'s ``compile``, the
+        rest of its wall time to ``settle``."""
+        settings = self.scene.simulation
+        if settings.settle <= 0:
+            return None
+        started = time.perf_counter()
+        record = RunRecord()
+        free = ~self.garment.pinned
+        mass = self.model.host_mass
+        unconverged_before = getattr(self.integrator, "unconverged_steps", 0)
+        rippled = self.positions() + settling_ripple(self.garment) * free[:, None]
+        self.state_in.x.from_numpy(rippled.astype(self.model.numpy_real))
+        dt = self.time_step.dt
+        steps_per_check = max(1, round(SETTLE_CHECK_INTERVAL / dt))
+        checks_per_frame = max(1, round(self.frame_duration / (steps_per_check * dt)))
+        self.set_time_step(dt, steps_per_check)
+        previous, since_zeroed, simulated = 0.0, 0, 0.0
+        mean_speed, at_rest = math.inf, False
+        while simulated < settings.settle - 1e-9 and not at_rest:
+            self.guarded_frame(1, record, still=True)  # may halve the step
+            self.integrator.take_iterations()
+            simulated += self.time_step.dt * self.time_step.substeps_per_frame
+            since_zeroed += 1
+            v = self.state_in.v.to_numpy().astype(np.float64)
+            speed_sq = np.sum(v * v, axis=1)
+            mean_speed = self.mean_free_speed(v)
+            at_rest = since_zeroed >= checks_per_frame and mean_speed < settings.settle_speed
+            kinetic = 0.5 * float(np.sum(mass * speed_sq))
+            if kinetic < previous and not at_rest:
+                self.state_in.v.fill(0)
+                kinetic, since_zeroed = 0.0, 0
+            previous = kinetic
+        dt = self.time_step.dt
+        self.set_time_step(dt, max(1, round(self.frame_duration / dt)))
+        compile_seconds = record.wall_seconds["compile"]
+        run_record.wall_seconds["compile"] += compile_seconds
+        run_record.wall_seconds["settle"] = time.perf_counter() - started - compile_seconds
+        self.settle_report = {"simulated_seconds": simulated, "mean_speed": mean_speed,
+                              "at_rest": bool(at_rest)}
+        if hasattr(self.integrator, "unconverged_steps"):  # settling's own, not the run's
+            self.settle_report["unconverged_steps"] = \
+                self.integrator.unconverged_steps - unconverged_before
+            self.integrator.unconverged_steps = unconverged_before
+        return self.settle_report
+
     def run(self, frame_count: int, on_frame=None, record: RunRecord | None = None,
             first_frame: int = 0) -> RunRecord:
-        """Simulate frames ``first_frame`` … ``frame_count`` − 1 (the state must be that of
-        ``first_frame``'s start) into ``record`` (a new one if None: pass your own to keep what
-        was measured when a run is interrupted); call ``on_frame(frame, metrics)`` after each."""
+        """Frames ``first_frame`` … ``frame_count`` into ``record`` (a new one if None: pass
+        your own to keep what was measured when a run is interrupted): frame 0 is the state as
+        it is (t = 0, measured, nothing simulated), frame k ≥ 1 is simulated from the state of
+        frame k − 1, which must be the current state; ``on_frame(frame, metrics)`` after each."""
         record = RunRecord() if record is None else record
-        for frame in range(first_frame, frame_count):
-            metrics = self.guarded_frame(frame, record)
+        for frame in range(first_frame, frame_count + 1):
+            if frame == 0:
+                x, v = self.positions(), self.state_in.v.to_numpy().astype(np.float64)
+                problem = self.state_problem(x, v)
+                if problem is not None:
+                    raise UnstableError(f"frame 0: the starting cloth {problem}", 0)
+                metrics = self.measure(0, x, v)
+            else:
+                metrics = self.guarded_frame(frame, record)
             iterations = self.integrator.take_iterations()
             if iterations:
                 record.cg_iterations.extend(iterations)
@@ -278,7 +367,11 @@ class Simulation:
             "finite": True,
             "max_strain": record.max_strain,
             "max_penetration": record.max_penetration,
+            "max_penetrating_samples": record.max_penetrating_samples,
+            "surface_samples": self.model.particle_count + len(self.surface_edges)
+            + len(self.garment.triangles),
             "wall_seconds": {k: round(v, 4) for k, v in record.wall_seconds.items()},
             **self._solver_report(record),
+            **({"settle": self.settle_report} if self.settle_report is not None else {}),
             "per_frame": [f.as_dict() for f in record.frames],
         }

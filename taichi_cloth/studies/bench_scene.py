@@ -40,7 +40,7 @@ class PassTimer:
     @ti.func
     def _contact(self, state, t):
         if ti.static(self.has_contact):
-            self.contact.prepare(t)
+            self.contact.prepare(state.x, state.v, t)
             for i_p in range(self.model.particle_count):
                 self.out[i_p] = self.contact.force(self.model, state.x, state.v, i_p,
                                                    ti.cast(t, self.model.real))
@@ -77,7 +77,7 @@ def frame_rate(simulation, seconds: float, repeats: int) -> list[float]:
     """Substeps per second through ``advance_frame`` (body posing included), warm-up first."""
     from taichi_cloth.physics.metrics import RunRecord
     record = RunRecord()
-    frame = [0]
+    frame = [1]
 
     def run_batch():
         simulation.advance_frame(frame[0], record)

@@ -182,11 +182,11 @@ class Runner:
             again = self._simulate(simulation, rest, integrator, time_step, frame_count)
             run.simulate_seconds = min(run.simulate_seconds, again.simulate_seconds)
             repeats, spent = repeats + 1, spent + again.simulate_seconds
-        skipped = frame_count if run is warmup else frame_count - len(run.times)
+        skipped = frame_count if run is warmup else frame_count + 1 - len(run.times)
         for _ in range(skipped):  # the frames a blown-up run will not simulate
             progress.update(run.blowup_time)
         if warmup is not None and run is not warmup:
-            share = run.simulate_seconds * len(warmup.times) / max(len(run.times), 1)
+            share = run.simulate_seconds * (len(warmup.times) - 1) / max(len(run.times) - 1, 1)
             run.compile_seconds += max(warmup.compile_seconds + warmup.simulate_seconds - share,
                                        0.0)
         return run
@@ -205,7 +205,7 @@ class Runner:
             run.kinetic_energy.append(metrics.kinetic_energy)
             run.max_strain = max(run.max_strain, metrics.max_strain)
             run.max_penetration = max(run.max_penetration, metrics.max_penetration)
-            if progress is not None:
+            if progress is not None and frame > 0:
                 progress.update(metrics.t)
 
         record = RunRecord()
@@ -213,7 +213,7 @@ class Runner:
             simulation.run(frame_count, on_frame, record)
         except UnstableError as error:
             run.stable = False
-            run.blowup_time = simulation.frame_end_time(error.frame)
+            run.blowup_time = simulation.frame_time(error.frame)
             rejected = simulation.positions()  # max_retries = 0: the frame was not rolled back
             if np.isfinite(rejected).all():
                 run.blowup_positions = rejected

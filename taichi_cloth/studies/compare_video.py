@@ -89,8 +89,8 @@ def write_video_and_sheet(directory: Path, simulation, runs: list, quiet: bool) 
     scene = simulation.scene
     width = TILE_WIDTH
     height = round(width * scene.render.height / scene.render.width / 2) * 2
-    frame_count = scene.frame_count
-    times = [simulation.frame_end_time(k) for k in range(frame_count)]
+    frame_count = scene.frame_count + 1  # frame 0 (the start) to the last
+    times = [simulation.frame_time(k) for k in range(frame_count)]
     sheet_frames = set(np.linspace(0, frame_count - 1, min(SHEET_COLUMNS, frame_count))
                        .round().astype(int).tolist())
     positions = ti.Vector.field(3, ti.f32, simulation.model.particle_count)

@@ -121,7 +121,7 @@ def settle_dynamically(simulation) -> None:
     simulation.set_time_step(DYNAMIC_STEP, 1)
     record, mass, previous = RunRecord(), simulation.model.host_mass, math.inf
     for _ in range(DYNAMIC_STEPS):
-        simulation.advance_frame(0, record)
+        simulation.advance_frame(1, record)
         current = simulation.snapshot()
         speed_sq = np.sum(current.velocities ** 2, axis=1)
         if np.max(speed_sq) < DYNAMIC_REST_SPEED ** 2:

@@ -85,7 +85,7 @@ def settle(simulation: Simulation, move_tolerance: float = MOVE_TOLERANCE,
     previous = simulation.positions()
     remaining = math.inf
     for step in range(MAX_SETTLE_STEPS):
-        simulation.advance_frame(0, record)
+        simulation.advance_frame(1, record)
         snapshot = simulation.snapshot()
         simulation.restore(dataclasses.replace(snapshot,
                                                velocities=np.zeros_like(snapshot.velocities)))

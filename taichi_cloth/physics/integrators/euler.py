@@ -140,7 +140,7 @@ class EulerStep(Integrator):
         """The SIMD spring pass and the per-particle update (any effects), group by group."""
         packed = self.packed
         grid = self.model.grid
-        self.forces.prepare_effects(t)
+        self.forces.prepare_effects(state_in.x, state_in.v, t)
         if ti.static(self.has_post_step):
             packed.pack(state_in.x, state_in.v, buffer, self.model.has_dashpots)
         for row, group in ti.ndrange(grid.rows, ti.static(packed.filled_groups)):

@@ -170,11 +170,11 @@ class BackwardEuler(BlockConjugateGradient, Integrator):
     @ti.func
     def _blocks(self, i_p, h, time):
         """Particle i_p's part of A at the candidate (module docstring): n, a and b of each of
-        its gather entries, its own block L_i, and 1/diag(A)_i for the preconditioner."""
+        its gather entries, its own block L_i, and the inverse of A's diagonal block A_ii for the preconditioner."""
         model = self.model
         x, v = ti.static(self.candidate.x, self.candidate.v)
         real = model.real
-        spring_diagonal = ti.Vector.zero(real, 3)
+        diagonal_block = ti.Matrix.zero(real, 3, 3)
         for k in range(model.particle_spring_start[i_p], model.particle_spring_start[i_p + 1]):
             _, n, stiffness_axial, stiffness_isotropic, damping = self.forces.spring_axis(
                 x, i_p, k, True)
@@ -183,8 +183,9 @@ class BackwardEuler(BlockConjugateGradient, Integrator):
             self.spring_block[k].direction = n
             self.spring_block[k].axial = axial
             self.spring_block[k].isotropic = isotropic
-            spring_diagonal += axial * n * n + isotropic
-        own_diagonal = ti.Vector.zero(real, 3) + model.particle_mass[i_p]
+            diagonal_block += axial * n.outer_product(n) \
+                + isotropic * ti.Matrix.identity(real, 3)
+        own_block = model.particle_mass[i_p] * ti.Matrix.identity(real, 3)
         if ti.static(self.has_local_blocks):
             local = model.particle_mass[i_p] * ti.Matrix.identity(real, 3)
             effects = self.forces.jacobian_effects
@@ -193,12 +194,12 @@ class BackwardEuler(BlockConjugateGradient, Integrator):
                     model, x, v, i_p, time, True)
                 local -= h * damping_block + h * h * stiffness_block
             self.local_block[i_p] = local
-            own_diagonal = ti.Vector([local[c, c] for c in ti.static(range(3))])
+            own_block = local
         coupled = self.forces.coupled_effects
         for e in ti.static(range(len(coupled))):
             stiffness, damping = coupled[e].coupled_diagonal(model, i_p)
-            own_diagonal -= h * damping + h * h * stiffness
-        self.inverse_diagonal[i_p] = 1.0 / (spring_diagonal + own_diagonal)
+            own_block -= (h * damping + h * h * stiffness) * ti.Matrix.identity(real, 3)
+        self.inverse_block[i_p] = (diagonal_block + own_block).inverse()
 
     @ti.kernel
     def _accept(self, dt: ti.f64, last_newton: ti.i32):

@@ -15,28 +15,43 @@ def system_matrix(omega: float, zeta: float) -> np.ndarray:
     return np.array([[0.0, 1.0], [-omega ** 2, -2.0 * zeta * omega]])
 
 
-def amplification(method: str, omega: float, zeta: float, h: float) -> np.ndarray:
-    """The one-step matrix G of ``method`` ("euler", "symplectic", "rk4", "implicit")."""
+def amplification(method: str, omega: float, zeta: float, h) -> np.ndarray:
+    """The one-step matrices G of ``method`` ("euler", "symplectic", "rk4", "implicit") for the
+    steps h (an array (K,) of them: (K, 2, 2), or one: (2, 2))."""
     a = system_matrix(omega, zeta)
-    identity = np.eye(2)
+    ha = np.multiply.outer(np.asarray(h, float), a)
+    identity = np.broadcast_to(np.eye(2), ha.shape)
     if method == "euler":
-        return identity + h * a
+        return identity + ha
     if method == "symplectic":
         # v' = v + h·a(x, v);  x' = x + h·v'
-        velocity_update = identity + h * np.array([[0.0, 0.0], a[1]])
-        position_update = np.array([[1.0, h], [0.0, 1.0]])
+        velocity_update = identity.copy()
+        velocity_update[..., 1, :] += ha[..., 1, :]
+        position_update = identity.copy()
+        position_update[..., 0, 1] = ha[..., 0, 1]  # h·1
         return position_update @ velocity_update
     if method == "rk4":
-        ha = h * a
-        return identity + ha + ha @ ha / 2 + ha @ ha @ ha / 6 + ha @ ha @ ha @ ha / 24
+        ha2 = ha @ ha
+        return identity + ha + ha2 / 2 + ha2 @ ha / 6 + ha2 @ ha2 / 24
     if method == "implicit":
-        return np.linalg.inv(identity - h * a)
+        return np.linalg.inv(identity - ha)
     raise ValueError(f"unknown method {method!r}")
 
 
-def is_stable(method: str, omega: float, zeta: float, h: float) -> bool:
-    radius = max(abs(np.linalg.eigvals(amplification(method, omega, zeta, h))))
-    return radius <= 1.0 + 1e-12
+def spectral_radius(g: np.ndarray) -> np.ndarray:
+    """max |λ| of 2 × 2 matrices g (..., 2, 2), from λ = tr/2 ± √(tr²/4 − det)."""
+    trace = g[..., 0, 0] + g[..., 1, 1]
+    determinant = g[..., 0, 0] * g[..., 1, 1] - g[..., 0, 1] * g[..., 1, 0]
+    root = np.sqrt((trace * trace / 4 - determinant).astype(complex))
+    return np.maximum(np.abs(trace / 2 + root), np.abs(trace / 2 - root))
+
+
+def is_stable(method: str, omega: float, zeta: float, h):
+    """Whether the steps h (one, or an array) are stable: spectral radius of G at most 1."""
+    return spectral_radius(amplification(method, omega, zeta, h)) <= 1.0 + 1e-12
+
+
+SCAN_FACTOR = 1.05
 
 
 def mode_step_limit(method: str, omega: float, zeta: float, h_max: float = 1e3) -> float:
@@ -44,15 +59,19 @@ def mode_step_limit(method: str, omega: float, zeta: float, h_max: float = 1e3) 
     Returns ``h_max`` when every step up to it is stable, 0 when none is. The scan starts below
     ωh = 0.1·ζ, inside explicit Euler's region ωh ≤ 2ζ however light the damping, and at
     ωh = 1e-4 for an undamped mode, where explicit Euler's growth 1 + (ωh)²/2 is already
-    measurable (it is never stable)."""
+    measurable (it is never stable). The scan tests its whole geometric ladder of steps in one
+    vectorised call (closed-form 2 × 2 eigenvalues), so ``dt = "auto"`` costs milliseconds."""
     h = (min(1e-4, 0.1 * zeta) if zeta > 0 else 1e-4) / omega
     if not is_stable(method, omega, zeta, h):
         return 0.0
-    while h < h_max and is_stable(method, omega, zeta, h * 1.05):
-        h *= 1.05
-    if h >= h_max:
+    rungs = int(np.ceil(np.log(h_max / h) / np.log(SCAN_FACTOR))) + 1
+    ladder = h * SCAN_FACTOR ** np.arange(1, rungs + 1)
+    unstable = np.flatnonzero(~is_stable(method, omega, zeta, ladder) | (ladder >= h_max * 1.05))
+    first = int(unstable[0]) if len(unstable) else rungs
+    low = h if first == 0 else float(ladder[first - 1])
+    if low >= h_max:
         return h_max
-    low, high = h, h * 1.05
+    high = low * SCAN_FACTOR
     for _ in range(40):
         middle = 0.5 * (low + high)
         low, high = (middle, high) if is_stable(method, omega, zeta, middle) else (low, middle)

@@ -1,0 +1,86 @@
+"""Settling before the dance and frame 0: a cotton skirt comes to rest on the still dancer
+(kinetic damping, a ripple to leave the cone), the run's frame 0 is that state at t = 0, and the
+whole-surface penetration metric sees a capsule that passes between particles."""
+
+import numpy as np
+import pytest
+
+from taichi_cloth.cloth.garment import settling_ripple
+from taichi_cloth.cloth.topology import grid_triangles, triangle_edges
+from taichi_cloth.effects.penalty import capsule_penetration_depths
+from taichi_cloth.physics.metrics import RunRecord, surface_samples
+from taichi_cloth.physics.simulation import Simulation
+
+SETTLE_SPEED = 0.02  # m/s: the coarse skirt's contacts at the hips chatter at ~7 mm/s
+SMALL_SKIRT = ("cloth.resolution=[24, 10]", "simulation.integrator=implicit",
+               "simulation.dt=0.0166667", "simulation.settle=3", "body.ease_in=0.5",
+               f"simulation.settle_speed={SETTLE_SPEED}")
+
+
+@pytest.fixture(scope="module")
+def settled():
+    """A 24 × 10 cotton skirt settled on the hula dancer, then 2 frames of the dance."""
+    simulation = Simulation.from_scene("hula", SMALL_SKIRT)
+    pattern = simulation.positions()
+    record = RunRecord()
+    report = simulation.settle(record)
+    start = simulation.positions()
+    record = simulation.run(2, record=record)
+    return simulation, pattern, start, report, record
+
+
+def hem_radius(simulation, positions):
+    hem = positions[-simulation.garment.columns:]
+    return np.hypot(hem[:, 0], hem[:, 2])
+
+
+def test_the_skirt_comes_to_rest_hanging_in_folds(settled):
+    simulation, pattern, start, report, _ = settled
+    assert report["at_rest"] and report["mean_speed"] < SETTLE_SPEED
+    assert 0.1 < report["simulated_seconds"] < 3.0  # it moved, and stopped before the cap
+    radius = hem_radius(simulation, start)
+    # no longer the pattern's cone: the hem has fallen inwards and folds in and out
+    assert radius.mean() < hem_radius(simulation, pattern).mean() - 0.02
+    assert radius.max() - radius.min() > 0.02
+    assert "settle" in settled[4].wall_seconds
+
+
+def test_frame_zero_is_the_settled_state_at_time_zero(settled):
+    simulation, _, start, _, record = settled
+    assert [f.frame for f in record.frames] == [0, 1, 2]
+    assert [f.t for f in record.frames] == pytest.approx([0.0, 1 / 30, 2 / 30])
+    first = record.frames[0]
+    assert first.mean_speed < 0.05 and first.cg_iterations is None
+    mass = simulation.model.host_mass
+    com = np.sum(mass[:, None] * start, axis=0) / mass.sum()
+    np.testing.assert_allclose(first.center_of_mass, com, rtol=1e-9)
+
+
+def test_the_ripple_leaves_a_sheet_alone_and_pushes_a_skirt_radially(settled):
+    simulation = settled[0]
+    garment = simulation.garment
+    ripple = settling_ripple(garment, folds=8, amplitude=0.01)
+    assert np.abs(ripple[:garment.columns]).max() == 0  # the waist ring stays
+    hem = ripple[-garment.columns:]
+    assert np.abs(hem[:, 1]).max() == 0
+    # sin(8θ) at 24 columns peaks at sin(2π/3): 0.866 of the amplitude
+    assert np.linalg.norm(hem, axis=1).max() == pytest.approx(0.01 * np.sin(2 * np.pi / 3))
+
+
+def test_whole_surface_samples_catch_a_capsule_between_particles():
+    """A unit grid square (two triangles) in the plane y = 0 and a vertical capsule of radius
+    0.3 through its centre: every particle is 0.707 from the axis (outside), while the diagonal's
+    midpoint lies on the axis (0.3 deep) and both centroids √2/6 from it (0.3 − √2/6 deep)."""
+    positions = np.array([[0.0, 0, 0], [1, 0, 0], [0, 0, 1], [1, 0, 1]])
+    triangles = grid_triangles(2, 2, False)
+    edges = triangle_edges(triangles)
+    samples = surface_samples(positions, edges, triangles)
+    assert len(samples) == 4 + 5 + 2
+    a, b = np.array([[0.5, -1.0, 0.5]]), np.array([[0.5, 1.0, 0.5]])
+    depth = capsule_penetration_depths(samples, a, b, np.array([0.3]))
+    assert np.all(depth[:4] == 0)  # the particles alone see nothing
+    centre_distance = np.hypot(samples[:, 0] - 0.5, samples[:, 2] - 0.5)
+    np.testing.assert_allclose(depth, np.maximum(0.3 - centre_distance, 0.0), atol=1e-15)
+    assert depth.max() == pytest.approx(0.3)
+    assert np.count_nonzero(depth) == 3
+    assert sorted(depth[-2:]) == pytest.approx([0.3 - np.sqrt(2) / 6] * 2)

@@ -1,0 +1,129 @@
+"""Contact on the whole surface: edge midpoints and triangle centroids are contact samples whose
+penalty energy ½·m_s·k̂·d² is shared by their particles. The force is −∇E by finite differences
+of an energy written here from the geometry alone; the implicit solver's per-particle blocks are
+the diagonal blocks of the true Jacobian; the metric's samples catch a capsule between particles."""
+
+import numpy as np
+import pytest
+import taichi as ti
+from systems import assemble
+
+from taichi_cloth.cloth.garment import build_garment
+from taichi_cloth.cloth.topology import triangle_edges
+from taichi_cloth.config.scene import load_scene
+from taichi_cloth.effects.collision import CapsuleContact, CollisionSettings
+from taichi_cloth.effects.penalty import capsule_penetration_depths
+from taichi_cloth.physics.metrics import surface_samples
+from taichi_cloth.physics.model import Model
+
+STIFFNESS, MARGIN, RADIUS = 1e4, 0.01, 0.03  # 1/s², m, m: a bar thinner than the spacing
+BAR = np.array([[-0.6, 1.3, 0.0], [0.6, 1.3, 0.0]])
+
+
+class SheetOnThinBar:
+    """A 5 × 4 sheet (f64, about 12 cm spacing) crossed by a bar of radius 3 cm between its
+    particle rows; frictionless and undamped, so the contact force is conservative."""
+
+    def __init__(self):
+        scene = load_scene("sheet", ("cloth.resolution=[5, 4]", "cloth.pin='none'"))
+        self.garment = build_garment(scene.cloth, scene.material)
+        self.model = Model(self.garment, "f64", None)
+        physics = assemble(self.model, [(CapsuleContact, CollisionSettings(
+            stiffness=STIFFNESS, damping=0.0, friction=0.0, thickness=MARGIN))],
+            capsule_radius=[RADIUS])
+        physics.control.capsule_track.hold(BAR)
+        self.forces, self.contact = physics.forces, physics.effects[0]
+        self.springs_only = assemble(self.model).forces
+        n = self.model.particle_count
+        self.state = self.model.state()
+        self.out = ti.Vector.field(3, ti.f64, n)
+        self.u = ti.Vector.field(3, ti.f64, n)
+        self.damping_out = ti.Vector.field(3, ti.f64, n)
+        rng = np.random.default_rng(7)
+        x = self.garment.positions.copy()
+        # lay the sheet across the bar: its rows at heights around the bar's, randomly moved
+        x[:, 1] = 1.3 + 0.5 * (x[:, 1] - x[:, 1].mean())
+        self.x = x + 0.01 * rng.standard_normal(x.shape)
+        self.rng = rng
+        self.edges = triangle_edges(self.garment.triangles)
+
+    def energy(self, x):
+        """Σ over particles and samples of ½·m·k̂·d², d the depth inside radius + margin."""
+        mass = self.garment.mass
+        triangles = self.garment.triangles
+        points = surface_samples(x, self.edges, triangles)
+        masses = np.concatenate([mass, mass[self.edges].mean(axis=1),
+                                 mass[triangles].mean(axis=1)])
+        depth = capsule_penetration_depths(points, BAR[:1], BAR[1:],
+                                           np.array([RADIUS + MARGIN]))
+        return 0.5 * STIFFNESS * float(np.sum(masses * depth ** 2))
+
+    def force(self, x, forces=None):
+        """Every particle's total force (springs and contact) at x, at rest."""
+        self.state.x.from_numpy(x)
+        self.state.v.fill(0.0)
+        (forces or self.forces).evaluate(self.state.x, self.state.v, 0.0, self.out)
+        return self.out.to_numpy()
+
+    def contact_force(self, x):
+        return self.force(x) - self.force(x, self.springs_only)
+
+    def stiffness_product(self, x, u):
+        self.state.x.from_numpy(x)
+        self.state.v.fill(0.0)
+        self.u.from_numpy(u)
+        self.forces.evaluate_jacobian_products(self.state.x, self.state.v, self.u, 0.0, False,
+                                               self.out, self.damping_out)
+        return self.out.to_numpy()
+
+
+@pytest.fixture(scope="module")
+def sheet():
+    return SheetOnThinBar()
+
+
+def test_samples_between_particles_are_in_contact(sheet):
+    particles = capsule_penetration_depths(sheet.x, BAR[:1], BAR[1:], np.array([RADIUS + MARGIN]))
+    samples = capsule_penetration_depths(
+        surface_samples(sheet.x, sheet.edges, sheet.garment.triangles)[len(sheet.x):],
+        BAR[:1], BAR[1:], np.array([RADIUS + MARGIN]))
+    assert np.count_nonzero(samples) >= 4 and np.count_nonzero(samples) > 2 * np.count_nonzero(particles)
+
+
+def test_the_force_is_minus_the_gradient_of_the_sampled_energy(sheet):
+    force = sheet.contact_force(sheet.x)
+    eps = 1e-7
+    gradient = np.zeros_like(sheet.x)
+    for index in np.ndindex(*sheet.x.shape):
+        step = np.zeros_like(sheet.x)
+        step[index] = eps
+        gradient[index] = (sheet.energy(sheet.x + step) - sheet.energy(sheet.x - step)) / (2 * eps)
+    assert np.abs(force).max() > 1e-3
+    np.testing.assert_allclose(force, -gradient, atol=1e-6 * np.abs(force).max())
+
+
+def test_the_implicit_blocks_are_the_diagonal_blocks_of_the_jacobian(sheet):
+    """Column (i, c) of the product with e_(i,c): its row i is ∂f_i/∂x_i (w_a² of each sample's
+    block plus the particle's own); central differences of f_i in x_i give the same."""
+    n = sheet.model.particle_count
+    eps = 1e-6
+    checked = 0
+    for i in range(n):
+        block = np.empty((3, 3))
+        numeric = np.empty((3, 3))
+        for c in range(3):
+            u = np.zeros((n, 3))
+            u[i, c] = 1.0
+            block[:, c] = sheet.stiffness_product(sheet.x, u)[i]
+            numeric[:, c] = (sheet.force(sheet.x + eps * u)[i]
+                             - sheet.force(sheet.x - eps * u)[i]) / (2 * eps)
+        if np.abs(numeric).max() > 0:
+            checked += 1
+        np.testing.assert_allclose(block, numeric, atol=1e-5 * max(np.abs(numeric).max(), 1.0))
+    assert checked >= 4
+
+
+def test_auto_step_sees_the_samples_stiffness(sheet):
+    (stiffness, _), = sheet.contact.stability_modes()
+    # an interior particle of a grid: itself, 6 edges (w = ½), 6 triangles (w = ⅓) of equal mass
+    assert STIFFNESS * 2.5 < stiffness <= STIFFNESS * 6.0 + 1e-9
