@@ -107,14 +107,17 @@ def build_parser() -> argparse.ArgumentParser:
     commands.add_parser("materials", help="list the fabric presets")
     bench = commands.add_parser(
         "bench", help="substep throughput: the reference sheet per size and integrator, a NumPy "
-                      "baseline, each effect's cost and a whole scene's speed (docs/performance.md)")
+                      "baseline, real scenes with every integrator and their whole runs, each "
+                      "effect's cost (docs/performance.md)")
     bench.add_argument("--sizes", metavar="LIST",
                        help="reference sheet sizes n (n × n particles), e.g. 32,64,128,256 "
                             "(alone: only the sizes table)")
     bench.add_argument("--integrators", metavar="LIST",
                        help="comma list of integrators (default: symplectic,euler,rk4,implicit)")
-    bench.add_argument("--scene", help="scene for the effect costs and the whole-run speed "
-                                       "(default: hula; alone: only those parts)")
+    bench.add_argument("--scene", metavar="LIST",
+                       help="comma list of scenes: every integrator, the whole run, the effect "
+                            "costs and passes (default: hula, hula-paper, flag, drape, the "
+                            "effects of hula only; alone: only those parts)")
     bench.add_argument("--json", metavar="FILE", help="also write the rows as JSON to FILE")
     bench.add_argument("--seconds", type=float, default=1.0,
                        help="minimum seconds per timed repeat (default 1)")

@@ -27,6 +27,8 @@ from taichi_cloth.effects.penalty import (capsule_penetration_depths, closest_on
 from taichi_cloth.gather import incidence_lists
 from taichi_cloth.settings import setting
 
+MASK_BITS = 31  # capsules a particle's near-mask can hold (more: every sample tests them all)
+
 
 @dataclass(frozen=True)
 class CollisionSettings:
@@ -75,6 +77,8 @@ class CapsuleContact(Effect):
         self.capsule_velocity_b = ti.Vector.field(3, model.real, self.capsule_count)
         self.capsule_center = ti.Vector.field(3, model.real, self.capsule_count)
         self.capsule_reach_sq = ti.field(model.real, self.capsule_count)
+        # (reach + the farthest a sample can be from its particles)², for the particles' masks
+        self.capsule_sample_reach_sq = ti.field(model.real, self.capsule_count)
         self._host_radius = np.asarray(capsule_radius, dtype=track.numpy_real)
         self.surface = config.surface and len(model.garment.triangles) > 0
         self.stiffness_factor = 1.0
@@ -103,6 +107,11 @@ class CapsuleContact(Effect):
         free = mass > 0
         self.stiffness_factor = float(np.max(1.0 + share[free] / mass[free])) if free.any() else 1.0
         self.sample_count = len(corners)
+        # a sample lies within an edge length of its particles; the guard allows 100 % strain
+        rest = np.linalg.norm(np.diff(model.garment.positions[edges], axis=1), axis=2)
+        self.sample_pad = 2.0 * float(rest.max(initial=0.0))
+        self.masked = self.capsule_count <= MASK_BITS
+        self.particle_near = ti.field(ti.i32, model.particle_count)
         real = model.real
         self.sample_corners = ti.Vector.field(3, ti.i32, self.sample_count)
         self.sample_weights = ti.Vector.field(3, real, self.sample_count)
@@ -135,10 +144,30 @@ class CapsuleContact(Effect):
         sample's contact force at (x, v)."""
         self._pose(t)
         if ti.static(self.surface):
+            for i_p in range(self.model.particle_count):
+                self.particle_near[i_p] = self._near_mask(x[i_p])
             for i_s in range(self.sample_count):
-                position, velocity = self._sample_state(x, v, i_s)
-                self.sample_force[i_s] = self._contact_force(self.sample_mass[i_s], position,
-                                                             velocity)
+                corners = self.sample_corners[i_s]
+                mask = self.particle_near[corners[0]] | self.particle_near[corners[1]] \
+                    | self.particle_near[corners[2]]
+                force = ti.Vector.zero(self.model.real, 3)
+                if mask != 0:
+                    position, velocity = self._sample_state(x, v, i_s)
+                    force = self._contact_force(self.sample_mass[i_s], position, velocity, mask)
+                self.sample_force[i_s] = force
+
+    @ti.func
+    def _near_mask(self, position):
+        """Bit c set when ``position`` is within capsule c's reach padded by ``sample_pad``:
+        every sample near capsule c has a particle with bit c (all bits without ``masked``)."""
+        mask = -1
+        if ti.static(self.masked):
+            mask = 0
+            for i_c in range(self.capsule_count):
+                if (position - self.capsule_center[i_c]).norm_sqr() \
+                        < self.capsule_sample_reach_sq[i_c]:
+                    mask |= 1 << i_c
+        return mask
 
     @ti.func
     def _sample_state(self, x, v, i_s):
@@ -162,6 +191,9 @@ class CapsuleContact(Effect):
             self.capsule_center[i_c] = 0.5 * (a + b)
             reach = 0.5 * (b - a).norm() + self.capsule_radius[i_c] + real(self.margin)
             self.capsule_reach_sq[i_c] = reach * reach
+            if ti.static(self.surface):
+                padded = reach + real(self.sample_pad)
+                self.capsule_sample_reach_sq[i_c] = padded * padded
 
     @ti.func
     def probe(self, i_c, position):
@@ -186,13 +218,14 @@ class CapsuleContact(Effect):
         return (position - self.capsule_center[i_c]).norm_sqr() < self.capsule_reach_sq[i_c]
 
     @ti.func
-    def _contact_force(self, mass, position, velocity):
+    def _contact_force(self, mass, position, velocity, mask):
         """The penalty force [N] on a point of ``mass`` at ``position`` with ``velocity``,
-        summed over the capsules (each first culled by its bounding sphere)."""
+        summed over the capsules whose bit is set in ``mask`` (each first culled by its
+        bounding sphere)."""
         real = self.model.real
         f = ti.Vector.zero(real, 3)
         for i_c in range(self.capsule_count):
-            if self.near(i_c, position):
+            if (mask >> i_c) & 1 and self.near(i_c, position):
                 depth, normal, distance, _, _, surface_velocity = self.probe(i_c, position)
                 if depth > 0 and distance > 0:
                     f += penalty_force(mass, depth, normal, velocity - surface_velocity,
@@ -201,9 +234,18 @@ class CapsuleContact(Effect):
         return f
 
     @ti.func
+    def _mask(self, i_p):
+        """Particle i_p's near-mask of the last ``prepare`` (every capsule without surface
+        samples, which need no pass)."""
+        mask = -1
+        if ti.static(self.surface):
+            mask = self.particle_near[i_p]
+        return mask
+
+    @ti.func
     def force(self, model, x, v, i_p, t):
         """The particle's own contact and, with ``surface``, w_a·F_s of each of its samples."""
-        f = self._contact_force(model.particle_mass[i_p], x[i_p], v[i_p])
+        f = self._contact_force(model.particle_mass[i_p], x[i_p], v[i_p], self._mask(i_p))
         if ti.static(self.surface):
             for k in range(self.particle_sample_start[i_p], self.particle_sample_start[i_p + 1]):
                 i_s = self.particle_sample[k]
@@ -216,20 +258,23 @@ class CapsuleContact(Effect):
         ``surface``, w_a² times its samples' blocks (the couplings between a sample's particles
         left out: module docstring)."""
         stiffness_block, damping_block = self._contact_blocks(
-            model.particle_mass[i_p], x[i_p], v[i_p], definite)
+            model.particle_mass[i_p], x[i_p], v[i_p], self._mask(i_p), definite)
         if ti.static(self.surface):
             for k in range(self.particle_sample_start[i_p], self.particle_sample_start[i_p + 1]):
                 i_s = self.particle_sample[k]
                 weight = self.particle_sample_weight[k]
                 position, velocity = self._sample_state(x, v, i_s)
+                corners = self.sample_corners[i_s]
+                mask = self.particle_near[corners[0]] | self.particle_near[corners[1]] \
+                    | self.particle_near[corners[2]]
                 sample_stiffness, sample_damping = self._contact_blocks(
-                    self.sample_mass[i_s], position, velocity, definite)
+                    self.sample_mass[i_s], position, velocity, mask, definite)
                 stiffness_block += weight * weight * sample_stiffness
                 damping_block += weight * weight * sample_damping
         return stiffness_block, damping_block
 
     @ti.func
-    def _contact_blocks(self, mass, position, velocity, definite: ti.template()):
+    def _contact_blocks(self, mass, position, velocity, mask, definite: ti.template()):
         """(∂F/∂p, ∂F/∂u) of ``_contact_force`` on a point of ``mass``:
         ∂F/∂p = m·k̂·[−n·nᵀ + (d/|p − y|)·P], P = I − n·nᵀ (− â·âᵀ on the cylinder part), friction
         left out; ∂F/∂u from ``penalty_damping_block``. The curvature term d/|p − y|·P is
@@ -241,7 +286,7 @@ class CapsuleContact(Effect):
         damping_block = ti.Matrix.zero(real, 3, 3)
         identity = ti.Matrix.identity(real, 3)
         for i_c in range(self.capsule_count):
-            if self.near(i_c, position):
+            if (mask >> i_c) & 1 and self.near(i_c, position):
                 depth, normal, distance, s, axis, surface_velocity = self.probe(i_c, position)
                 relative_velocity = velocity - surface_velocity
                 if depth > 0 and distance > 0 and normal_force_magnitude(

@@ -12,10 +12,14 @@ compiles the kernels (compile time excluded); the table shows the median repeat.
 (``studies/numpy_cloth.py``) runs the same symplectic Euler step in NumPy as the baseline; the
 tests use it as the oracle of the force kernel. The scene parts are in ``studies/bench_scene.py``.
 
-Scene parts (``--scene``, default ``hula``): the cost of each effect, from the scene with and
-without it (an effect the scene lacks is added with its defaults), the spring and contact passes
-on their own, and the whole scene's simulated seconds per wall second (metrics and body posing
-included, compilation not).
+Real scenes (``--scene``, a comma list; by default ``REAL_SCENES``): each with every integrator
+(its own at the scene's step, the others at their auto step: particle-substeps per second and
+wall seconds per simulated second), and its whole run as ``simulate`` does it (start-up,
+compile and settling timed apart); for ``hula`` (or every scene named with ``--scene``) also
+the cost of each effect, from the scene with and without it measured in turns (an effect the
+scene lacks is added with its defaults; a cost within the noise is reported as such, never
+negative), and the spring and contact passes on their own; by default also ``hula`` at
+128 × 56.
 """
 
 import time
@@ -33,7 +37,8 @@ from taichi_cloth.runtime import start_taichi
 from taichi_cloth.config.scene import ClothConfig, load_scene
 from taichi_cloth.physics.control import Control
 from taichi_cloth.physics.packed_grid import packed_grid_for
-from taichi_cloth.studies.bench_scene import bench_effects, bench_passes, bench_scene_run
+from taichi_cloth.studies.bench_scene import (bench_effects, bench_passes, bench_scene_integrators,
+                                              bench_scene_run)
 from taichi_cloth.studies.numpy_cloth import NumpyCloth
 from taichi_cloth.studies.timing import substep_row, timed_rate
 
@@ -44,6 +49,8 @@ REFERENCE_MATERIAL = Material("reference", density=0.13, stretch_stiffness=10.0,
                               thickness=4e-4, description="bench: stable at 1/1920 s")
 DEFAULT_SIZES = (32, 64, 128, 256, 512)
 DEFAULT_INTEGRATORS = ("symplectic", "euler", "rk4", "implicit")
+REAL_SCENES = ("hula", "hula-paper", "flag", "drape")
+FINE_HULA = ("cloth.resolution=[128, 56]",)
 IMPLICIT_FRAME_SIZE = 64
 IMPLICIT_FRAME_DT_S = 1.0 / 60.0
 
@@ -175,17 +182,31 @@ def report(rows: list[dict], fits: dict) -> str:
                          f"{format_rate(row['substeps_per_second'])} substeps/s")
         elif kind == "effect":
             state = "declared" if row["declared_in_scene"] else "added"
-            parts.append(f"  effect {row['effect']:<10} ({state}): "
-                         f"{row['cost_us_per_substep']:8.2f} µs per substep, "
-                         f"{row['cost_ns_per_particle_substep']:7.2f} ns per particle-substep")
+            cost = f"below the noise of {row['noise_us_per_substep']:.2f} µs per substep" \
+                if row["below_noise"] else \
+                f"{row['cost_us_per_substep']:8.2f} µs per substep, " \
+                f"{row['cost_ns_per_particle_substep']:7.2f} ns per particle-substep"
+            parts.append(f"  effect {row['effect']:<10} ({state}): {cost}")
+        elif kind == "scene-integrator":
+            if "no_stable_step" in row:
+                parts.append(f"{row['scene']:>10} {row['integrator']:<11} no stable auto step")
+            else:
+                mark = " (shipped)" if row["shipped"] else ""
+                parts.append(f"{row['scene']:>10} {row['integrator']:<11} {row['size']:>7} "
+                             f"dt {row['dt']:.3g} s: "
+                             f"{format_rate(row['particle_substeps_per_second'])} "
+                             f"particle-substeps/s, {row['wall_seconds_per_simulated_second']:.3g} "
+                             f"wall s per simulated s{mark}")
         elif kind == "passes":
             parts.append(f"{row['scene']} passes: springs {row['springs_us_per_substep']:.2f} µs, "
                          f"contact {row['contact_us_per_substep']:.2f} µs per substep")
         elif kind == "scene-run":
-            parts.append(f"{row['scene']} whole run: {row['frames']} frames, "
-                         f"{row['simulated_seconds_per_wall_second']:.2f} simulated seconds per "
-                         f"wall second ({row['wall_seconds']:.2f} s wall, "
-                         f"{row['compile_seconds']:.2f} s compile not counted)")
+            parts.append(f"{row['scene']} ({row['size']}, {row['integrator']}) whole run: "
+                         f"{row['simulated_seconds']:.3g} s simulated in "
+                         f"{row['wall_seconds']:.2f} s wall "
+                         f"({row['wall_seconds_per_simulated_second']:.2f} per simulated s); "
+                         f"start-up {row['startup_seconds']:.2f} s, compile "
+                         f"{row['compile_seconds']:.2f} s, settling {row['settle_seconds']:.2f} s")
         elif kind == "implicit-large-step":
             parts.append(f"implicit, {row['size']}x{row['size']} sheet, dt = 1/60 s: "
                          f"{format_rate(row['substeps_per_second'])} steps/s = "
@@ -194,14 +215,14 @@ def report(rows: list[dict], fits: dict) -> str:
     return "\n".join(p for p in parts if p)
 
 
-def run_bench(sizes, integrators, scene_name, seconds: float, repeats: int, arch: str = "cpu",
-              progress=None, profile: bool = False) -> tuple[list[dict], dict]:
+def run_bench(sizes, integrators, scene_names, seconds: float, repeats: int,
+              arch: str = "cpu", progress=None, profile: bool = False) -> tuple[list[dict], dict]:
     """Rows of every requested part and the scaling fits. ``sizes``/``integrators`` None and
-    ``scene_name`` None: everything (the default sizes and integrators, ``hula``, the implicit
-    large step); given sizes or integrators alone: the sizes table only; a scene alone: its
-    parts only."""
+    ``scene_names`` None: everything (the default sizes and integrators, ``REAL_SCENES``, hula's
+    effects and passes, hula at 128 × 56, the implicit large step); given sizes or integrators
+    alone: the sizes table only; scenes alone: their parts only (effects and passes too)."""
     start_taichi(arch, kernel_profiler=profile)
-    everything = sizes is None and integrators is None and scene_name is None
+    everything = sizes is None and integrators is None and scene_names is None
     rows = []
     say = progress or (lambda message: None)
     if everything or sizes is not None or integrators is not None:
@@ -211,15 +232,20 @@ def run_bench(sizes, integrators, scene_name, seconds: float, repeats: int, arch
                 rows.append(bench_reference(size, name, seconds, repeats))
             say(f"numpy {size}x{size}")
             rows.append(bench_numpy(size, seconds, repeats))
-    if everything or scene_name is not None:
-        name = scene_name or "hula"
-        say(f"{name}: effects")
-        rows.extend(bench_effects(name, seconds, repeats))
-        say(f"{name}: passes")
-        rows.append(bench_passes(name, seconds, repeats))
-        say(f"{name}: whole run")
-        rows.append(bench_scene_run(name))
+    if everything or scene_names is not None:
+        for name in scene_names or REAL_SCENES:
+            if scene_names is not None or name == "hula":
+                say(f"{name}: effects")
+                rows.extend(bench_effects(name, seconds, repeats))
+                say(f"{name}: passes")
+                rows.append(bench_passes(name, seconds, repeats))
+            say(f"{name}: every integrator")
+            rows.extend(bench_scene_integrators(name, seconds, repeats))
+            say(f"{name}: whole run")
+            rows.append(bench_scene_run(name))
     if everything:
+        say("hula at 128x56: whole run")
+        rows.append(bench_scene_run("hula", FINE_HULA))
         say("implicit 64x64 at 1/60 s")
         rows.append(bench_implicit_frames(seconds, repeats))
     return rows, scaling_exponent([r for r in rows if r["benchmark"] == "reference"])
@@ -231,7 +257,7 @@ def rows_document(rows: list[dict], fits: dict) -> list[dict]:
                    for name, fit in fits.items()]
 
 
-def bench_command(sizes: str | None, integrators: str | None, scene_name: str | None,
+def bench_command(sizes: str | None, integrators: str | None, scenes: str | None,
                   json_path: str | None, seconds: float, repeats: int, arch: str,
                   quiet: bool, profile: bool = False) -> int:
     """The ``bench`` command: the report on the console, the rows as JSON to ``json_path``."""
@@ -246,10 +272,15 @@ def bench_command(sizes: str | None, integrators: str | None, scene_name: str | 
         if integrators is not None else None
     if not (0 < seconds < 3600) or repeats < 1:  # also refuses nan
         raise InputError("--seconds must be between 0 and 3600 and --repeats at least 1")
-    if scene_name is not None:
-        load_scene(scene_name)  # a bad name fails before any measuring
+    scene_names = None
+    if scenes is not None:
+        scene_names = [name.strip() for name in scenes.split(",") if name.strip()]
+        if not scene_names:
+            raise InputError("--scene: give one or more scene names or files, comma-separated")
+        for name in scene_names:
+            load_scene(name)  # a bad name fails before any measuring
     say = None if quiet else (lambda message: print(f"bench: {message}", flush=True))
-    rows, fits = run_bench(size_list, integrator_list, scene_name, seconds, repeats, arch, say,
+    rows, fits = run_bench(size_list, integrator_list, scene_names, seconds, repeats, arch, say,
                            profile)
     print(report(rows, fits))
     if profile:

@@ -88,13 +88,34 @@ def frame_rate(simulation, seconds: float, repeats: int) -> list[float]:
     return timed_rate(run_batch, simulation.time_step.substeps_per_frame, seconds, repeats)
 
 
+def interleaved_seconds(first, second, seconds: float, repeats: int) -> tuple[list, list]:
+    """Seconds per substep of two simulations, measured in turns (first, second, first, ...)
+    so that a change in the machine's load falls on both alike."""
+    times = ([], [])
+    for _ in range(repeats):
+        for simulation, out in zip((first, second), times):
+            out.extend(1.0 / rate for rate in frame_rate(simulation, seconds / 2, 1))
+    return times
+
+
+def effect_cost(with_times: list, without_times: list) -> dict:
+    """An effect's cost per substep from interleaved repeats [s]: the difference of the
+    medians, unless it is within the noise (the larger half-range of the two sets of repeats),
+    when it is reported as below that bound instead: a cost is never negative."""
+    cost = statistics.median(with_times) - statistics.median(without_times)
+    noise = max(0.5 * (max(t) - min(t)) for t in (with_times, without_times))
+    below_noise = cost <= noise
+    return {"cost_us_per_substep": None if below_noise else round(1e6 * cost, 3),
+            "noise_us_per_substep": round(1e6 * noise, 3), "below_noise": below_noise}
+
+
 def bench_effects(scene_name: str, seconds: float, repeats: int) -> list[dict]:
     """The cost of each effect: the scene with and without it (added with its defaults when the
-    scene lacks it and can have it), in microseconds per substep and nanoseconds per
-    particle-substep."""
+    scene lacks it and can have it), in turns (``interleaved_seconds``), in microseconds per
+    substep and nanoseconds per particle-substep; a cost within the noise is reported as such
+    (``effect_cost``)."""
     base = scene_simulation(scene_name)
     base_rates = frame_rate(base, seconds, repeats)
-    base_rate = statistics.median(base_rates)
     particles = base.model.particle_count
     size = f"{base.garment.columns}x{base.garment.rows}"
     integrator = base.scene.simulation.integrator
@@ -107,16 +128,47 @@ def bench_effects(scene_name: str, seconds: float, repeats: int) -> list[dict]:
                                      (f"effects.{name}={'false' if declared else 'true'}",))
         except InputError:  # the scene cannot have it (collision without a body, ...)
             continue
-        other_rates = frame_rate(other, seconds, repeats)
-        with_rate, without_rate = (base_rate, statistics.median(other_rates)) if declared \
-            else (statistics.median(other_rates), base_rate)
-        cost = 1.0 / with_rate - 1.0 / without_rate
-        rows.append(substep_row("effect", integrator, size, particles, other_rates,
-                                scene=scene_name, effect=name, declared_in_scene=declared,
-                                substeps_per_second_with=with_rate,
-                                substeps_per_second_without=without_rate,
-                                cost_us_per_substep=round(1e6 * cost, 3),
-                                cost_ns_per_particle_substep=round(1e9 * cost / particles, 3)))
+        if other.time_step.dt != base.time_step.dt:  # an auto step the effect changes
+            other.set_time_step(base.time_step.dt, base.time_step.substeps_per_frame)
+        base_times, other_times = interleaved_seconds(base, other, seconds, repeats)
+        with_times, without_times = (base_times, other_times) if declared \
+            else (other_times, base_times)
+        cost = effect_cost(with_times, without_times)
+        per_particle = None if cost["below_noise"] else \
+            round(1e3 * cost["cost_us_per_substep"] / particles, 3)
+        rows.append(substep_row("effect", integrator, size, particles,
+                                [1.0 / t for t in other_times], scene=scene_name, effect=name,
+                                declared_in_scene=declared,
+                                substeps_per_second_with=1.0 / statistics.median(with_times),
+                                substeps_per_second_without=1.0 / statistics.median(
+                                    without_times),
+                                cost_ns_per_particle_substep=per_particle, **cost))
+    return rows
+
+
+def bench_scene_integrators(scene_name: str, seconds: float, repeats: int) -> list[dict]:
+    """The scene with every integrator: its own at the scene's step, the others at their
+    ``dt = "auto"`` step; substeps and particle-substeps per second through ``advance_frame``
+    and the wall seconds per simulated second that gives. An integrator with no stable auto
+    step (explicit Euler without dashpots) gets a row saying so."""
+    from taichi_cloth.physics.integrators import INTEGRATORS
+    shipped = scene_simulation(scene_name)
+    rows = []
+    for name in INTEGRATORS:
+        own = name == shipped.scene.simulation.integrator
+        overrides = () if own else (f"simulation.integrator={name}", "simulation.dt=auto")
+        try:
+            simulation = shipped if own else scene_simulation(scene_name, overrides)
+        except InputError as error:
+            rows.append({"benchmark": "scene-integrator", "scene": scene_name,
+                         "integrator": name, "shipped": False, "no_stable_step": str(error)})
+            continue
+        rates = frame_rate(simulation, seconds, repeats)
+        dt = simulation.time_step.dt
+        rows.append(substep_row(
+            "scene-integrator", name, f"{simulation.garment.columns}x{simulation.garment.rows}",
+            simulation.model.particle_count, rates, scene=scene_name, shipped=own, dt=dt,
+            wall_seconds_per_simulated_second=1.0 / (statistics.median(rates) * dt)))
     return rows
 
 
@@ -136,23 +188,35 @@ def bench_passes(scene_name: str, seconds: float, repeats: int) -> dict:
             "contact_us_per_substep": round(1e6 * contact, 3)}
 
 
-def bench_scene_run(scene_name: str) -> dict:
-    """The whole scene, every frame, as ``simulate`` runs it: simulated seconds per wall
-    second, compilation excluded."""
-    simulation = scene_simulation(scene_name)
-    frames = simulation.scene.frame_count
+def bench_scene_run(scene_name: str, overrides: tuple = ()) -> dict:
+    """The whole scene, every frame, as ``simulate`` runs it (settling first): start-up (the
+    scene read, the simulation built, the step chosen), compile, settle and simulated seconds
+    per wall second of the frames, each timed on its own."""
+    from taichi_cloth.physics.metrics import RunRecord
     started = time.perf_counter()
-    record = simulation.run(frames)
-    wall = time.perf_counter() - started - record.wall_seconds["compile"]
+    simulation = scene_simulation(scene_name, overrides)
+    startup = time.perf_counter() - started
+    record = RunRecord()
+    simulation.settle(record)
+    frames = simulation.scene.frame_count
+    compiled_before = record.wall_seconds["compile"]
+    started = time.perf_counter()
+    simulation.run(frames, record=record)
+    wall = time.perf_counter() - started - (record.wall_seconds["compile"] - compiled_before)
     simulated = frames / simulation.scene.scene.fps
     substeps = frames * simulation.time_step.substeps_per_frame
-    return {"benchmark": "scene-run", "scene": scene_name,
+    stats = simulation.stats(record)
+    return {"benchmark": "scene-run", "scene": scene_name, "overrides": list(overrides),
             "integrator": simulation.scene.simulation.integrator,
             "size": f"{simulation.garment.columns}x{simulation.garment.rows}",
             "particles": simulation.model.particle_count,
             "substeps_per_second": substeps / wall,
             "particle_substeps_per_second": substeps * simulation.model.particle_count / wall,
             "frames": frames, "dt": simulation.time_step.dt, "simulated_seconds": simulated,
-            "wall_seconds": round(wall, 3),
+            "wall_seconds": round(wall, 3), "startup_seconds": round(startup, 3),
             "compile_seconds": round(record.wall_seconds["compile"], 3),
-            "simulated_seconds_per_wall_second": simulated / wall}
+            "settle_seconds": round(record.wall_seconds.get("settle", 0.0), 3),
+            "simulated_seconds_per_wall_second": simulated / wall,
+            "wall_seconds_per_simulated_second": wall / simulated,
+            "max_strain": stats["max_strain"], "max_penetration": stats["max_penetration"],
+            **({"cg": stats["cg"]} if "cg" in stats else {})}
