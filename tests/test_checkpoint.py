@@ -2,6 +2,7 @@
 belong to the scene (other settings, none at all, a damaged file) is refused with an InputError
 naming --resume."""
 
+import dataclasses
 import struct
 import zipfile
 
@@ -12,6 +13,7 @@ from taichi_cloth.config.scene import load_scene
 from taichi_cloth.errors import InputError
 from taichi_cloth.output.checkpoint import (CHECKPOINT_NAME, Checkpoint, load_checkpoint,
                                             save_checkpoint, scene_fingerprint)
+from taichi_cloth.output.run import read_previous_stats
 from taichi_cloth.physics.simulation import Snapshot
 
 RESOLUTION = "cloth.resolution=[4, 4]"
@@ -100,13 +102,10 @@ def test_missing_checkpoint_is_refused(tmp_path, scene):
         load_checkpoint(tmp_path, scene)
 
 
-@pytest.mark.xfail(strict=True, reason="resume does not verify the file yet (issue: never "
-                                       "silently wrong)")
 @pytest.mark.parametrize("damage", ["truncated", "garbage"])
 def test_damaged_checkpoint_is_refused_with_an_input_error(tmp_path, scene, damage):
-    """A checkpoint cut short (the disk filled up, a copy interrupted) or overwritten should be
-    refused like any other bad input (exit code 2), not end the run with a traceback. Today
-    numpy's own error (zipfile.BadZipFile, ValueError on pickled data) escapes."""
+    """A checkpoint cut short (the disk filled up, a copy interrupted) or overwritten is refused
+    like any other bad input (exit code 2), not with numpy's own error."""
     save_checkpoint(tmp_path, random_checkpoint(scene))
     path = tmp_path / CHECKPOINT_NAME
     data = path.read_bytes()
@@ -118,7 +117,7 @@ def test_damaged_checkpoint_is_refused_with_an_input_error(tmp_path, scene, dama
 
 def test_a_flipped_byte_in_the_positions_is_never_loaded_silently(tmp_path, scene):
     """One bit of rot inside the stored positions: the zip CRC catches it, so a resumed run can
-    never go on from a silently wrong state (whatever the exception is)."""
+    never go on from a silently wrong state; it is refused as a damaged file (exit code 2)."""
     save_checkpoint(tmp_path, random_checkpoint(scene))
     path = tmp_path / CHECKPOINT_NAME
     with zipfile.ZipFile(path) as archive:
@@ -129,5 +128,40 @@ def test_a_flipped_byte_in_the_positions_is_never_loaded_silently(tmp_path, scen
     payload = entry.header_offset + 30 + name_length + extra_length
     data[payload + entry.compress_size - 1] ^= 0x01  # the last byte of the last coordinate
     path.write_bytes(bytes(data))
-    with pytest.raises(Exception, match="CRC"):
+    with pytest.raises(InputError, match="--resume.*damaged"):
         load_checkpoint(tmp_path, scene)
+
+
+@pytest.mark.parametrize("change, words", [
+    (lambda c: dataclasses.replace(c, snapshot=dataclasses.replace(
+        c.snapshot, positions=np.full((16, 3), np.nan))), "non-finite state"),
+    (lambda c: dataclasses.replace(c, next_frame=-5), "impossible frame"),
+    (lambda c: dataclasses.replace(c, snapshot=dataclasses.replace(c.snapshot, dt=0.0)),
+     "impossible frame"),
+    (lambda c: dataclasses.replace(c, snapshot=dataclasses.replace(
+        c.snapshot, integrator_memory={"guess": np.full(3, np.inf)})), "non-finite solver"),
+])
+def test_a_well_formed_but_unusable_checkpoint_is_refused(tmp_path, scene, change, words):
+    """Written whole (its checksum holds) but holding what no run can continue from."""
+    save_checkpoint(tmp_path, change(random_checkpoint(scene)))
+    with pytest.raises(InputError, match=f"--resume.*{words}"):
+        load_checkpoint(tmp_path, scene, 16)
+
+
+def test_other_particle_counts_and_outputs_are_refused(tmp_path, scene):
+    save_checkpoint(tmp_path, dataclasses.replace(random_checkpoint(scene), outputs="png 64x48"))
+    with pytest.raises(InputError, match="--resume.*16 particles"):
+        load_checkpoint(tmp_path, scene, 25)
+    with pytest.raises(InputError, match="--resume.*other outputs"):
+        load_checkpoint(tmp_path, scene, 16, "png 640x480")
+    assert load_checkpoint(tmp_path, scene, 16, "png 64x48").outputs == "png 64x48"
+
+
+@pytest.mark.parametrize("text", [None, "{\"per_frame\": [{\"frame\": 0}", "[]",
+                                  "{\"per_frame\": [{\"frame\": 0}]}"])
+def test_resume_refuses_a_missing_truncated_or_short_stats_file(tmp_path, text):
+    """The interrupted run's stats.json must hold the frames the checkpoint continues (here 3)."""
+    if text is not None:
+        (tmp_path / "stats.json").write_text(text)
+    with pytest.raises(InputError, match="--resume.*stats.json"):
+        read_previous_stats(tmp_path, 3)

@@ -55,13 +55,6 @@ def write_png(target: Path, image: np.ndarray) -> None:
         iio.imwrite(temporary, image)
 
 
-def remove_stale_frames(directory: Path, prefix: str, frame_count: int) -> None:
-    """Delete ``<prefix>_NNNNN.*`` files with NNNNN >= ``frame_count`` left by a longer run."""
-    for path in Path(directory).glob(f"{prefix}_[0-9][0-9][0-9][0-9][0-9].*"):
-        if int(path.stem.rsplit("_", 1)[1]) >= frame_count:
-            path.unlink(missing_ok=True)
-
-
 def write_csv(target: Path, rows: list[dict], columns) -> None:
     """``rows`` under ``columns`` as CSV, blanks for missing or None values, atomically."""
     text = io.StringIO()

@@ -12,10 +12,11 @@ from pathlib import Path
 
 import numpy as np
 
-from taichi_cloth.output.checkpoint import (Checkpoint, load_checkpoint, remove_checkpoint, save_checkpoint,
-                         scene_fingerprint)
+from taichi_cloth.output.checkpoint import (Checkpoint, load_checkpoint, outputs_fingerprint,
+                                            remove_checkpoint, save_checkpoint, scene_fingerprint)
 from taichi_cloth.errors import InputError, UnstableError
-from taichi_cloth.output.files import copy_file, read_png, remove_stale_frames, write_json, write_png
+from taichi_cloth.output.files import copy_file, read_png, write_json, write_png
+from taichi_cloth.output.folder import OwnedFolder
 from taichi_cloth.output.meshes import MeshSeries, seam_split, write_material
 from taichi_cloth.output.video import video_writer
 from taichi_cloth.output.progress import Progress
@@ -86,21 +87,33 @@ def run_scene(scene: Scene, frame_count: int, directory: Path, quiet: bool,
     ``frame_count``; per frame render a PNG and a video frame (when ``size``
     is given) and write meshes; then stats.json and a one-line summary. An interrupted or
     unstable run still leaves stats.json for the frames done (and, interrupted, a checkpoint that
-    ``resume`` continues from)."""
+    ``resume`` continues from). The run owns ``directory`` while it writes (``OwnedFolder``:
+    locked; afterwards only files of an earlier run's manifest are removed, never others)."""
+    check_writable(directory, "--out")
+    with OwnedFolder(directory) as folder:
+        return run_in_folder(scene, frame_count, folder, quiet, size, video, meshes,
+                             body_meshes, resume)
+
+
+def run_in_folder(scene: Scene, frame_count: int, folder: OwnedFolder, quiet: bool,
+                  size: tuple[int, int] | None, video: str, meshes, body_meshes: bool,
+                  resume: bool) -> int:
+    """``run_scene`` in its locked folder."""
     from taichi_cloth.physics.metrics import FrameMetrics, RunRecord
     from taichi_cloth.physics.simulation import Simulation
-    check_writable(directory, "--out")
+    directory = folder.directory
     simulation = Simulation.from_scene(scene)
+    outputs = outputs_fingerprint(size, video, meshes, body_meshes)
     record = RunRecord()
     first_frame = 0
     if resume:
         if "xdmf" in meshes:
             raise InputError("--resume: an XDMF series cannot be continued; run again without "
                              "--resume, or without xdmf")
-        checkpoint = load_checkpoint(directory, scene)
+        checkpoint = load_checkpoint(directory, scene, simulation.model.particle_count, outputs)
         simulation.restore(checkpoint.snapshot)
         first_frame = checkpoint.next_frame
-        previous = json.loads((directory / "stats.json").read_text())
+        previous = read_previous_stats(directory, first_frame)
         simulation.settle_report = previous.get("settle")
         record.frames = [FrameMetrics.from_dict(frame)
                          for frame in previous["per_frame"][:first_frame]]
@@ -146,32 +159,57 @@ def run_scene(scene: Scene, frame_count: int, directory: Path, quiet: bool,
         try:
             simulation.run(frame_count, on_frame, record, first_frame)
         except (KeyboardInterrupt, SystemExit, UnstableError) as stop:
-            keep_partial_run(simulation, record, directory, finished, stop)
+            keep_partial_run(simulation, record, folder, finished, stop, resume, outputs)
             raise
         for mesh, _ in series:
             mesh.finish()
     if renderer is not None:
         record.wall_seconds["render"] = seconds["render"]
-        remove_stale_frames(directory / FRAME_DIR, "frame", frame_count + 1)
     if series:
         record.wall_seconds["export"] = seconds["export"]
-        for mesh, _ in series:
-            remove_stale_frames(directory / MESH_DIR, mesh.name, frame_count + 1)
     stats = simulation.stats(record)
     if first_frame:
         stats["resumed_at_frame"] = first_frame
     write_json(directory / "stats.json", stats)
     remove_checkpoint(directory)
+    folder.finish(resume)
     if not quiet:
         print(summary(stats, directory))
     return 0
 
 
-def keep_partial_run(simulation, record, directory: Path, finished: dict, stop) -> None:
+def read_previous_stats(directory: Path, first_frame: int) -> dict:
+    """The interrupted run's stats.json, with at least ``first_frame`` frames; InputError
+    naming --resume when it is missing, unreadable or short."""
+    path = directory / "stats.json"
+    try:
+        document = json.loads(path.read_text())
+        frames = document["per_frame"]
+        if not isinstance(frames, list) or len(frames) < first_frame:
+            raise ValueError(f"{len(frames)} frames, the checkpoint needs {first_frame}")
+    except (OSError, ValueError, KeyError, TypeError) as error:
+        raise InputError(f"--resume: {path} cannot continue the run ({error}); start again "
+                         f"without --resume") from None
+    return document
+
+
+def keep_partial_run(simulation, record, folder: OwnedFolder, finished: dict, stop,
+                     resumed: bool, outputs: str) -> None:
     """After a stop: stats.json for the whole frames done (marked ``stopped``) and, when
-    interrupted (not unstable), a checkpoint and how to resume on stderr."""
+    interrupted (not unstable), a checkpoint and how to resume on stderr; the manifest of what
+    the run wrote."""
     if not finished:
         return
+    directory = folder.directory
+    try:
+        write_partial_outputs(simulation, record, directory, finished, stop, outputs)
+    finally:
+        folder.finish(resumed)
+
+
+def write_partial_outputs(simulation, record, directory: Path, finished: dict, stop,
+                          outputs: str) -> None:
+    """``keep_partial_run``'s files: stats.json, and the checkpoint unless unstable."""
     done = finished["frame"] + 1
     record.frames = record.frames[:done]
     stats = simulation.stats(record)
@@ -183,7 +221,7 @@ def keep_partial_run(simulation, record, directory: Path, finished: dict, stop) 
     save_checkpoint(directory, Checkpoint(
         next_frame=done, snapshot=finished["snapshot"], retries=record.retries,
         fingerprint=scene_fingerprint(simulation.scene),
-        cg_iterations=np.array(record.cg_iterations, np.int64)))
+        cg_iterations=np.array(record.cg_iterations, np.int64), outputs=outputs))
     command = " ".join(["python -m taichi_cloth", *sys.argv[1:]])
     sys.stderr.write(f"stopped after frame {done - 1}: frames 0–{done - 1} and stats.json are "
                      f"in {directory}; to continue: {command} --resume\n")

@@ -1,0 +1,90 @@
+"""The output folder is the run's own: it changes or removes nothing it did not write (files
+that look like its outputs included), a second run into a folder being written is refused with
+exit 2, a killed run's lock is taken over, and a run's manifest lists exactly what it wrote."""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from taichi_cloth import cli
+from taichi_cloth.output.folder import LOCK_NAME, MANIFEST_NAME, OwnedFolder
+
+REPO = Path(__file__).resolve().parent.parent
+SMALL = ["cloth.resolution=[6,3]"]
+# names like the outputs' that the runs below never write (a file with an output's very name is
+# that output: a run writes it)
+LOOK_ALIKES = ["frames/frame_00099.png", "frames/frame_00001.png.bak", "meshes/cloth_00009.ply",
+               "meshes/cloth_00050.txt", "meshes/cloth_00003.obj", "stats.json.old", "notes.txt"]
+
+
+def fill(folder: Path) -> dict:
+    """Look-alike user files (and a folder named like a frame); their bytes by path."""
+    for index, name in enumerate(LOOK_ALIKES):
+        path = folder / name
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_bytes(f"user file {index}".encode())
+    (folder / "frames" / "frame_00050.d").mkdir()
+    return {name: (folder / name).read_bytes() for name in LOOK_ALIKES}
+
+
+def test_a_run_leaves_every_file_it_did_not_write_alone(tmp_path):
+    before = fill(tmp_path)
+    for frames in (3, 1):  # the shorter second run removes the first one's extra frames only
+        code = cli.render("skirt", SMALL, frames, str(tmp_path), None, True, 64, 48, "",
+                          meshes=("ply",))
+        assert code == 0
+    assert {name: (tmp_path / name).read_bytes() for name in LOOK_ALIKES} == before
+    assert (tmp_path / "frames" / "frame_00050.d").is_dir()
+    manifest = json.loads((tmp_path / MANIFEST_NAME).read_text())["files"]
+    assert "stats.json" in manifest and "frames/frame_00000.png" in manifest
+    assert "frames/frame_00002.png" not in manifest
+    assert not (tmp_path / "frames" / "frame_00002.png").exists()  # the longer run's, removed
+    assert not set(LOOK_ALIKES) & set(manifest)
+    assert not (tmp_path / LOCK_NAME).exists()
+
+
+def test_a_second_run_into_a_locked_folder_exits_2(tmp_path):
+    (tmp_path / LOCK_NAME).write_text(f"{os.getppid()}\n")  # a live process that is not us
+    result = subprocess.run([sys.executable, "-m", "taichi_cloth", "simulate", "skirt",
+                             "--set", SMALL[0], "--frames", "1", "--out", str(tmp_path)],
+                            cwd=REPO, capture_output=True, text=True, timeout=120)
+    assert result.returncode == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and "--out" in lines[0] and "another run" in lines[0]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [LOCK_NAME]
+
+
+def test_a_killed_runs_lock_is_taken_over(tmp_path):
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                          capture_output=True, text=True).stdout.strip()
+    (tmp_path / LOCK_NAME).write_text(f"{dead}\n")
+    assert cli.simulate("skirt", SMALL, 1, str(tmp_path), None, True) == 0
+    assert (tmp_path / "stats.json").exists() and not (tmp_path / LOCK_NAME).exists()
+
+
+def test_the_manifest_is_what_changed(tmp_path):
+    (tmp_path / "kept.txt").write_text("mine")
+    with OwnedFolder(tmp_path) as folder:
+        (tmp_path / "new.txt").write_text("run")
+        folder.finish()
+    assert json.loads((tmp_path / MANIFEST_NAME).read_text())["files"] == ["new.txt"]
+    with OwnedFolder(tmp_path) as folder:
+        folder.finish()  # wrote nothing: the earlier run's file goes, the user's stays
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["kept.txt", MANIFEST_NAME]
+
+
+@pytest.mark.parametrize("resumed", [True, False])
+def test_a_resumed_run_keeps_what_it_continues(tmp_path, resumed):
+    with OwnedFolder(tmp_path) as folder:
+        (tmp_path / "frame_00000.png").write_text("0")
+        folder.finish()
+    with OwnedFolder(tmp_path) as folder:
+        (tmp_path / "frame_00001.png").write_text("1")
+        folder.finish(resumed)
+    names = json.loads((tmp_path / MANIFEST_NAME).read_text())["files"]
+    expected = ["frame_00000.png", "frame_00001.png"] if resumed else ["frame_00001.png"]
+    assert names == expected and (tmp_path / "frame_00000.png").exists() == resumed
