@@ -12,6 +12,7 @@ import pytest
 
 from taichi_cloth import cli
 from taichi_cloth.output.folder import LOCK_NAME, MANIFEST_NAME, OwnedFolder
+from taichi_cloth.output.run import safe_name
 
 REPO = Path(__file__).resolve().parent.parent
 SMALL = ["cloth.resolution=[6,3]"]
@@ -88,3 +89,21 @@ def test_a_resumed_run_keeps_what_it_continues(tmp_path, resumed):
     names = json.loads((tmp_path / MANIFEST_NAME).read_text())["files"]
     expected = ["frame_00000.png", "frame_00001.png"] if resumed else ["frame_00001.png"]
     assert names == expected and (tmp_path / "frame_00000.png").exists() == resumed
+
+
+@pytest.mark.parametrize("name, slug", [
+    ("hula", "hula"), ("/abs/dir", "abs-dir"), ("../../x", "x"), ("a\x00b", "a-b"),
+    ("My skirt: v2", "My-skirt-v2"), ("...", "scene"), ("x" * 5000, "x" * 80),
+])
+def test_a_scene_name_is_never_a_path(name, slug):
+    assert safe_name(name) == slug
+
+
+def test_a_scene_named_like_a_path_writes_under_output(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    scene_file = tmp_path / "evil.toml"
+    scene_file.write_text((REPO / "scenes" / "skirt.toml").read_text().replace(
+        "[scene]", "[scene]\nname = \"../../escaped\"", 1))
+    assert cli.simulate(str(scene_file), SMALL, 1, None, None, True) == 0
+    assert (tmp_path / "output" / "escaped" / "stats.json").exists()
+    assert not (tmp_path.parent.parent / "escaped").exists()

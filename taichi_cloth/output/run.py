@@ -5,6 +5,7 @@ files are written whole or not at all (``output.files.atomic_path``)."""
 import contextlib
 import json
 import os
+import re
 import sys
 import tempfile
 import time
@@ -23,17 +24,26 @@ from taichi_cloth.output.progress import Progress
 from taichi_cloth.config.scene import Scene
 
 OUTPUT_ROOT = Path("output")
+NAME_LENGTH = 80  # characters of a scene's name in file names
 FRAME_DIR = "frames"  # PNG frames, inside the output folder
 MESH_DIR = "meshes"
 
 
+def safe_name(name: str) -> str:
+    """``name`` as one safe file-name component: runs of anything but letters, digits, '.',
+    '_' and '-' become '-', no leading dots or dashes, at most ``NAME_LENGTH`` characters
+    ("scene" when nothing is left): a scene's name is never a path."""
+    slug = re.sub(r"[^A-Za-z0-9._-]+", "-", name).strip(".-")[:NAME_LENGTH].rstrip(".-")
+    return slug or "scene"
+
+
 def output_dir(scene: Scene, out: str | None) -> Path:
-    """--out, else [output].dir, else output/<scene>."""
+    """--out, else [output].dir, else output/<the scene's safe name>."""
     if out:
         return Path(out)
     if scene.output.dir:
         return Path(scene.output.dir)
-    return OUTPUT_ROOT / scene.name
+    return OUTPUT_ROOT / safe_name(scene.name)
 
 
 def check_writable(directory: Path, flag: str) -> None:
@@ -133,7 +143,7 @@ def run_in_folder(scene: Scene, frame_count: int, folder: OwnedFolder, quiet: bo
             renderer = stack.enter_context(Renderer(scene, simulation.garment, body, *size))
             if video:
                 append_video = stack.enter_context(video_writer(
-                    directory / f"{scene.name}.{video}", video, scene.scene.fps))
+                    directory / f"{safe_name(scene.name)}.{video}", video, scene.scene.fps))
                 for frame in range(first_frame):
                     append_video(read_png(directory / FRAME_DIR / f"frame_{frame:05d}.png"))
         series = mesh_series(scene, simulation, directory, meshes, body_meshes)

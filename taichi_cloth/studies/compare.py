@@ -39,7 +39,7 @@ from pathlib import Path
 import numpy as np
 import taichi as ti
 
-from taichi_cloth.output.run import OUTPUT_ROOT, check_writable
+from taichi_cloth.output.run import OUTPUT_ROOT, check_writable, safe_name
 from taichi_cloth.errors import InputError, UnstableError
 from taichi_cloth.flags import choice_list, number_list
 from taichi_cloth.output.files import write_csv, write_json
@@ -322,7 +322,7 @@ def compare(scene_name: str, overrides: list[str], integrators: str | None = Non
     scene = load_scene(scene_name, tuple(extra))
     seconds = seconds or min(scene.scene.duration, DEFAULT_DURATION_CAP)
     extra.append(f"scene.duration={seconds!r}")
-    directory = Path(out) if out else OUTPUT_ROOT / "compare" / scene.name
+    directory = Path(out) if out else OUTPUT_ROOT / "compare" / safe_name(scene.name)
     check_writable(directory, "--out")
 
     runner = Runner(scene_name, tuple(extra))
