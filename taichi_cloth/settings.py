@@ -128,3 +128,19 @@ def build_table(ctx: SourceContext, cls, table: Any, dotted: str):
         else:
             values[name] = _check_value(ctx, child, table[name], f.metadata)
     return cls(**values)
+
+
+def numbers_in(value, dotted: str):
+    """(dotted key, float) for every float inside ``value``: a settings dataclass (its fields),
+    a dict (its items), a list or tuple (``key[i]``), or a float."""
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        for item in dataclasses.fields(value):
+            yield from numbers_in(getattr(value, item.name), f"{dotted}.{item.name}")
+    elif isinstance(value, dict):
+        for key, item in value.items():
+            yield from numbers_in(item, f"{dotted}.{key}")
+    elif isinstance(value, (list, tuple)):
+        for index, item in enumerate(value):
+            yield from numbers_in(item, f"{dotted}[{index}]")
+    elif isinstance(value, float):
+        yield dotted, value

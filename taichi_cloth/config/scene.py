@@ -15,11 +15,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from taichi_cloth.config.materials import PRESETS, Material
 from taichi_cloth.effects import EFFECT_BY_NAME
 from taichi_cloth.errors import InputError
 from taichi_cloth.runtime import ARCH_NAMES
-from taichi_cloth.settings import SourceContext, build_table, setting
+from taichi_cloth.settings import SourceContext, build_table, numbers_in, setting
 
 SCENES_DIR = Path(__file__).resolve().parents[2] / "scenes"
 INTEGRATOR_NAMES = ("euler", "symplectic", "rk4", "implicit")
@@ -344,4 +346,24 @@ def load_scene(name_or_path: str, overrides: tuple[str, ...] = ()) -> Scene:
     for name in scene.effects:
         if EFFECT_BY_NAME[name].needs_body and scene.body is None:
             raise ctx.error(f"effects.{name}", f"{name} needs a [body] section")
+    check_precision_range(ctx, scene)
     return scene
+
+
+F32_MAX, F32_TINY = float(np.finfo(np.float32).max), float(np.finfo(np.float32).tiny)
+
+
+def check_precision_range(ctx: SourceContext, scene: Scene) -> None:
+    """In float32 every number of the scene must be one float32 can hold: at most 3.4e38 in
+    magnitude and, unless zero, at least its smallest normal 1.2e-38 (a larger one would become
+    ±∞, a smaller one 0 or a subnormal that fast math flushes to 0: the cloth would silently
+    lose gravity or stiffness). An InputError names the key."""
+    if scene.simulation.precision != "f32":
+        return
+    for section in ("scene", "simulation", "cloth", "effects", "body", "render"):
+        for dotted, value in numbers_in(getattr(scene, section), section):
+            magnitude = abs(value)
+            if magnitude > F32_MAX or 0 < magnitude < F32_TINY:
+                raise ctx.error(dotted, f"{value:g} is outside float32's range (magnitudes "
+                                        f"{F32_TINY:.3g} to {F32_MAX:.3g}); use "
+                                        f"simulation.precision = \"f64\" or a value in range")
