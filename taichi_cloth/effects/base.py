@@ -13,8 +13,9 @@ Genesis' ``force_fields.py``). What an effect declares:
 - ``force(model, x, v, i_p, t)``: a ``@ti.func`` returning its force on particle i_p [N], gathered
   per particle (no atomics); ``has_force = False`` when it acts elsewhere (the dashpots act
   inside the spring pass, ``model_options``).
-- ``prepare(t)``: a ``@ti.func`` run once per force evaluation before the particle loops (posing
-  the capsules); nothing by default.
+- ``prepare(x, v, t)``: a ``@ti.func`` run once per force evaluation before the particle loops
+  (posing the capsules; the contact of the surface samples, which particles then gather);
+  nothing by default.
 - ``has_jacobian`` and ``local_jacobian(model, x, v, i_p, t, definite)``: its per-particle blocks
   (∂f_i/∂x_i, ∂f_i/∂v_i) for the implicit solver, or ``has_jacobian = False`` when it has none
   (a constant force). An effect that couples particles (bending) sets ``has_coupled_jacobian``
