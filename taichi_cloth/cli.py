@@ -136,6 +136,9 @@ def build_parser() -> argparse.ArgumentParser:
     fabric.add_argument("--resolution", default="0.5", metavar="LIST",
                         help="particle spacing as a fraction of the bending length, a comma "
                              "list (default 0.5)")
+    fabric.add_argument("--specimens", type=int, default=3,
+                        help="drape: specimens per material and resolution, each from its own "
+                             "start ripple; their mean DC is reported (default 3, as ISO 9073-9)")
     add_common_arguments(fabric, "output folder (default: output/fabric-test/<test>)",
                          "override a dotted key of the lab scene (scenes/lab/<test>.toml), "
                          "e.g. --set cloth.material.bend_stiffness=2e-5 (repeatable)")
@@ -239,7 +242,8 @@ def main(argv=None) -> int:
             from taichi_cloth.studies.fabric_lab import fabric_test_command
             arch = [f"simulation.arch={args.arch}"] if args.arch else []
             return fabric_test_command(args.test, args.material, args.resolution,
-                                       args.overrides + arch, args.out, args.quiet)
+                                       args.overrides + arch, args.out, args.quiet,
+                                       args.specimens)
         if args.command == "scenes":
             return list_scenes()
         if args.command == "materials":

@@ -80,7 +80,7 @@ def test_node_count_counts_the_bulges_of_the_hem():
 @pytest.fixture(scope="module")
 def drapes():
     """Silk and denim at the coarse spacing (one bending length), and denim at 0.7 of it."""
-    return {(material, fraction): drape((f"cloth.material={material}",), fraction)
+    return {(material, fraction): drape((f"cloth.material={material}",), fraction, specimens=1)
             for material, fraction in (("silk", 1.0), ("denim", 1.0), ("denim", 0.7))}
 
 
@@ -110,6 +110,7 @@ def test_fabric_test_command_writes_table_csv_and_pictures(tmp_path, capsys):
     (["fabric-test", "cantilever", "--material", "linen"], "--material"),
     (["fabric-test", "drape", "--resolution", "2"], "--resolution"),
     (["fabric-test", "drape", "--resolution", "x"], "--resolution"),
+    (["fabric-test", "drape", "--specimens", "0"], "--specimens"),
     (["fabric-test", "cantilever", "--set", "cloth.material.density=-1"], "density"),
 ])
 def test_bad_lab_input_is_one_line_exit_2(argv, flag, capsys):

@@ -39,9 +39,21 @@ def closest_points_numpy(x: np.ndarray, a: np.ndarray, b: np.ndarray):
 def capsule_penetration_depths(x: np.ndarray, a: np.ndarray, b: np.ndarray,
                                radius: np.ndarray) -> np.ndarray:
     """How deep [m] each point of x (P, 3) lies inside the capsule it is deepest in (0 when in
-    none), the capsules (a, b) (C, 3) [m] with ``radius`` (C,) [m]."""
-    _, _, distance = closest_points_numpy(x, a, b)
-    return np.maximum(np.max(radius[None, :] - distance, axis=1), 0.0)
+    none), the capsules (a, b) (C, 3) [m] with ``radius`` (C,) [m]. One capsule at a time, and
+    only the points inside its bounding sphere (the metric samples ~10⁴ points a frame)."""
+    depth = np.zeros(len(x))
+    for start, end, r in zip(a, b, radius):
+        axis = end - start
+        centre, reach = 0.5 * (start + end), 0.5 * np.linalg.norm(axis) + r
+        near = np.flatnonzero(np.sum((x - centre) ** 2, axis=1) < reach * reach)
+        if not len(near):
+            continue
+        offset = x[near] - start
+        length_sq = float(axis @ axis)
+        s = np.clip(offset @ axis / length_sq, 0.0, 1.0) if length_sq > 0 else 0.0
+        distance = np.linalg.norm(offset - np.multiply.outer(s, axis), axis=1)
+        depth[near] = np.maximum(depth[near], r - distance)
+    return depth
 
 
 @ti.func

@@ -122,16 +122,18 @@ CANTILEVER_COLUMNS = [("material", "material", "s"), ("direction", "direction", 
                       ("bend_stiffness_Nm", "B [N·m]", ".3e"), ("residual", "residual", ".1e")]
 DRAPE_COLUMNS = [("material", "material", "s"), ("spacing_m", "spacing [m]", ".4f"),
                  ("particles", "particles", "d"), ("bending_length_m", "c [m]", ".4f"),
-                 ("drape_coefficient", "DC", ".3f"), ("nodes", "nodes", "d"),
+                 ("drape_coefficient", "DC", ".3f"),
+                 ("drape_coefficient_spread", "DC spread", ".3f"), ("nodes", "nodes", "d"),
                  ("residual", "residual", ".1e")]
 PICTURE_KEYS = ("positions", "triangles", "columns", "hem_angle", "hem_radius")
 
 
 def fabric_test_command(test: str, materials: str, resolutions: str, overrides: list[str],
-                        out: str | None, quiet: bool) -> int:
+                        out: str | None, quiet: bool, specimens: int = 3) -> int:
     """``fabric-test``: run ``test`` for each material (comma list of presets or scene files)
-    at each resolution (particle spacing as a fraction of the bending length); print the table,
-    write ``results.csv`` and a picture per run into ``out``."""
+    at each resolution (particle spacing as a fraction of the bending length; the drape on
+    ``specimens`` specimens); print the table, write ``results.csv`` and a picture per run into
+    ``out``."""
     from taichi_cloth.flags import number_list
     from taichi_cloth.studies import fabric_plots
     from taichi_cloth.studies.cantilever import DIRECTIONS, cantilever
@@ -141,6 +143,8 @@ def fabric_test_command(test: str, materials: str, resolutions: str, overrides: 
         raise InputError(f"--material {materials}: no material given")
     material_sets = [(name, material_overrides(name)) for name in material_list]
     fractions = number_list(resolutions, "--resolution", float, 0.0, "bending lengths")
+    if not 1 <= specimens <= 20:
+        raise InputError(f"--specimens {specimens}: give 1 to 20 specimens")
     if max(fractions) > 1.0:
         raise InputError(f"--resolution {resolutions}: a spacing above one bending length "
                          f"cannot resolve the bend; use e.g. 0.5,0.25")
@@ -151,7 +155,7 @@ def fabric_test_command(test: str, materials: str, resolutions: str, overrides: 
     for name, material in material_sets:
         for fraction in fractions:
             runs = [cantilever(material, direction, fraction, extra) for direction in DIRECTIONS] \
-                if test == "cantilever" else [drape(material, fraction, extra)]
+                if test == "cantilever" else [drape(material, fraction, extra, specimens)]
             for row in runs:
                 label = f"{row['material']}_{row.get('direction', '-')}_{fraction:g}".replace(
                     "_-", "")
