@@ -25,3 +25,11 @@ def start_taichi(arch: str = "cpu", kernel_profiler: bool = False) -> None:
         ti.init(arch=ARCHES[arch], random_seed=0, kernel_profiler=kernel_profiler)
     if arch != "cpu" and ti.lang.impl.current_cfg().arch == ti.cpu:
         raise InputError(f"--arch {arch}: no {arch} device found (Taichi fell back to the CPU)")
+
+
+def runs_on_cpu() -> bool:
+    """Whether the started runtime runs on the CPU. Only there does ``ti.loop_config(serialize=
+    True)`` on a kernel's outer loop make its inner loops run one after another on one thread:
+    the GPU backends (Vulkan, CUDA) run such an outer loop's iterations side by side, so a
+    whole-frame launch would take one substep's worth of motion per frame."""
+    return ti.lang.impl.current_cfg().arch in (ti.x64, ti.arm64)

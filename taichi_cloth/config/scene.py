@@ -346,6 +346,11 @@ def load_scene(name_or_path: str, overrides: tuple[str, ...] = ()) -> Scene:
     for name in scene.effects:
         if EFFECT_BY_NAME[name].needs_body and scene.body is None:
             raise ctx.error(f"effects.{name}", f"{name} needs a [body] section")
+    if scene.simulation.integrator == "implicit" and scene.simulation.arch != "cpu":
+        raise ctx.error("simulation.arch", "the implicit integrator runs on the CPU only: on "
+                                           "Vulkan its conjugate gradients break down at random "
+                                           "(a race not found yet); use arch = \"cpu\" or an "
+                                           "explicit integrator")
     check_precision_range(ctx, scene)
     return scene
 

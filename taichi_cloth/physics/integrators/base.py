@@ -21,6 +21,7 @@ An optional ``post_step`` (the contact projection) runs after each substep.
 import taichi as ti
 
 from taichi_cloth.physics.forces import Forces
+from taichi_cloth.runtime import runs_on_cpu
 
 # Below this many particles one thread beats two (the measurement behind it is in
 # docs/performance.md, "Launch sizes"); an integrator with more work per particle sets its own
@@ -50,7 +51,8 @@ class Integrator:
         self.control = control
         self.post_step = post_step
         self.has_post_step = post_step is not None
-        self.serial = self.model.particle_count <= self.serial_particle_limit
+        # one thread, a whole frame per launch: on the CPU only (``runtime.runs_on_cpu``)
+        self.serial = self.model.particle_count <= self.serial_particle_limit and runs_on_cpu()
 
     def memory(self) -> dict:
         """Host copies of what the integrator carries from step to step besides the state
