@@ -3,6 +3,7 @@ and hands it to the command's module: ``output.run`` (simulate, render), ``studi
 ``studies.bench``; lists what ships."""
 
 import argparse
+import math
 import signal
 import sys
 
@@ -10,6 +11,7 @@ from taichi_cloth.config.materials import PRESETS
 from taichi_cloth.config.scene import MESH_FORMATS, load_scene, shipped_scene_names
 from taichi_cloth.errors import InputError, UnstableError
 from taichi_cloth.flags import choice_list
+from taichi_cloth.output.budget import RunLimits
 from taichi_cloth.runtime import ARCH_NAMES
 
 
@@ -40,6 +42,12 @@ def add_scene_arguments(parser: argparse.ArgumentParser) -> None:
                          "--set simulation.integrator=rk4 (repeatable)")
     parser.add_argument("--resume", action="store_true",
                         help="continue an interrupted run from the checkpoint in its output folder")
+    parser.add_argument("--max-hours", type=float, default=RunLimits.max_hours, metavar="H",
+                        help="refuse (exit 2) a run estimated to take longer than H hours "
+                             f"(default {RunLimits.max_hours:g})")
+    parser.add_argument("--max-memory", type=float, metavar="GB",
+                        help="refuse (exit 2) a cloth that needs more memory than GB (default: "
+                             "80 %% of the memory available)")
 
 
 def mesh_formats(text: str) -> tuple[str, ...]:
@@ -168,19 +176,20 @@ def check_size(value: int, flag: str) -> None:
 
 def simulate(scene_name: str, overrides: list[str], frames: int | None, out: str | None,
              arch: str | None, quiet: bool, meshes=None, body_meshes: bool = False,
-             resume: bool = False) -> int:
+             resume: bool = False, limits: RunLimits = RunLimits()) -> int:
     """Physics only: run the scene and write stats.json (and meshes when asked)."""
     from taichi_cloth.output.run import output_dir, run_scene
     scene, frame_count = prepare_scene(scene_name, overrides, frames, arch)
     return run_scene(scene, frame_count, output_dir(scene, out), quiet,
                      meshes=scene.output.meshes if meshes is None else meshes,
-                     body_meshes=body_meshes or scene.output.body_meshes, resume=resume)
+                     body_meshes=body_meshes or scene.output.body_meshes, resume=resume,
+                     limits=limits)
 
 
 def render(scene_name: str, overrides: list[str], frames: int | None, out: str | None,
            arch: str | None, quiet: bool, width: int | None = None, height: int | None = None,
            video: str | None = None, meshes=None, body_meshes: bool = False,
-           resume: bool = False) -> int:
+           resume: bool = False, limits: RunLimits = RunLimits()) -> int:
     """Simulate and write PNG frames (headless GGUI), and a video and meshes when asked."""
     from taichi_cloth.output.run import output_dir, run_scene
     for value, flag in ((width, "--width"), (height, "--height")):
@@ -191,7 +200,8 @@ def render(scene_name: str, overrides: list[str], frames: int | None, out: str |
     return run_scene(scene, frame_count, output_dir(scene, out), quiet, size,
                      video=scene.output.video if video is None else video,
                      meshes=scene.output.meshes if meshes is None else meshes,
-                     body_meshes=body_meshes or scene.output.body_meshes, resume=resume)
+                     body_meshes=body_meshes or scene.output.body_meshes, resume=resume,
+                     limits=limits)
 
 
 def list_scenes() -> int:
@@ -212,6 +222,16 @@ def list_materials() -> int:
     return 0
 
 
+def run_limits(args) -> RunLimits:
+    """--max-hours and --max-memory, checked."""
+    if not (args.max_hours > 0 and math.isfinite(args.max_hours)):
+        raise InputError(f"--max-hours {args.max_hours}: must be a positive number of hours")
+    if args.max_memory is not None and not (args.max_memory > 0 and
+                                            math.isfinite(args.max_memory)):
+        raise InputError(f"--max-memory {args.max_memory}: must be a positive number of GB")
+    return RunLimits(args.max_hours, args.max_memory)
+
+
 def stop_on_terminate(signum, frame):
     """SIGTERM unwinds like Ctrl-C, so half-written outputs are removed (exit 128 + 15)."""
     raise SystemExit(128 + signum)
@@ -223,12 +243,12 @@ def main(argv=None) -> int:
     try:
         if args.command == "simulate":
             return simulate(args.scene, args.overrides, args.frames, args.out,
-                                     args.arch, args.quiet, args.meshes, args.body_meshes,
-                                     args.resume)
+                            args.arch, args.quiet, args.meshes, args.body_meshes,
+                            args.resume, run_limits(args))
         if args.command == "render":
             return render(args.scene, args.overrides, args.frames, args.out, args.arch,
-                                   args.quiet, args.width, args.height, args.video, args.meshes,
-                                   args.body_meshes, args.resume)
+                          args.quiet, args.width, args.height, args.video, args.meshes,
+                          args.body_meshes, args.resume, run_limits(args))
         if args.command == "compare":
             from taichi_cloth.studies.compare import compare
             return compare(args.scene, args.overrides, args.integrators, args.dts, args.duration,

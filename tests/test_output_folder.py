@@ -107,3 +107,23 @@ def test_a_scene_named_like_a_path_writes_under_output(tmp_path, monkeypatch):
     assert cli.simulate(str(scene_file), SMALL, 1, None, None, True) == 0
     assert (tmp_path / "output" / "escaped" / "stats.json").exists()
     assert not (tmp_path.parent.parent / "escaped").exists()
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["simulate", "sheet", "--set", "cloth.resolution=[4000, 4000]"],
+     ["cloth.resolution", "GB", "--max-memory"]),
+    (["simulate", "hula-paper", "--set", "simulation.dt=1e-9"],
+     ["simulation.dt", "h", "--max-hours"]),
+    (["simulate", "sheet", "--max-hours", "nan"], ["--max-hours"]),
+])
+def test_a_run_past_the_machine_or_the_time_bound_is_refused_before_the_work(argv, words,
+                                                                             tmp_path, capsys):
+    out = tmp_path / "out"
+    try:
+        code = cli.main(argv + ["--out", str(out)])
+    except SystemExit as stop:
+        code = stop.code
+    error = capsys.readouterr().err.strip()
+    assert code == 2 and len(error.splitlines()) == 1
+    assert all(word in error for word in words)
+    assert not out.exists()

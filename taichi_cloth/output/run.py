@@ -17,6 +17,7 @@ from taichi_cloth.output.checkpoint import (Checkpoint, load_checkpoint, outputs
                                             remove_checkpoint, save_checkpoint, scene_fingerprint)
 from taichi_cloth.errors import InputError, UnstableError
 from taichi_cloth.output.files import copy_file, read_png, write_json, write_png
+from taichi_cloth.output.budget import RunLimits, check_memory, check_time
 from taichi_cloth.output.folder import OwnedFolder
 from taichi_cloth.output.meshes import MeshSeries, seam_split, write_material
 from taichi_cloth.output.video import video_writer
@@ -92,27 +93,31 @@ def mesh_series(scene: Scene, simulation, directory: Path, formats, body_meshes:
 
 def run_scene(scene: Scene, frame_count: int, directory: Path, quiet: bool,
               size: tuple[int, int] | None = None, video: str = "", meshes=(),
-              body_meshes: bool = False, resume: bool = False) -> int:
+              body_meshes: bool = False, resume: bool = False,
+              limits: RunLimits = RunLimits()) -> int:
     """Write frame 0 (the start, after ``Simulation.settle``) and simulate frames 1 …
     ``frame_count``; per frame render a PNG and a video frame (when ``size``
     is given) and write meshes; then stats.json and a one-line summary. An interrupted or
     unstable run still leaves stats.json for the frames done (and, interrupted, a checkpoint that
     ``resume`` continues from). The run owns ``directory`` while it writes (``OwnedFolder``:
-    locked; afterwards only files of an earlier run's manifest are removed, never others)."""
+    locked; afterwards only files of an earlier run's manifest are removed, never others).
+    ``limits``: memory and time beyond which the run stops before the work (``budget``)."""
     check_writable(directory, "--out")
+    check_memory(scene, limits)
     with OwnedFolder(directory) as folder:
         return run_in_folder(scene, frame_count, folder, quiet, size, video, meshes,
-                             body_meshes, resume)
+                             body_meshes, resume, limits)
 
 
 def run_in_folder(scene: Scene, frame_count: int, folder: OwnedFolder, quiet: bool,
                   size: tuple[int, int] | None, video: str, meshes, body_meshes: bool,
-                  resume: bool) -> int:
+                  resume: bool, limits: RunLimits) -> int:
     """``run_scene`` in its locked folder."""
     from taichi_cloth.physics.metrics import FrameMetrics, RunRecord
     from taichi_cloth.physics.simulation import Simulation
     directory = folder.directory
     simulation = Simulation.from_scene(scene)
+    check_time(simulation, frame_count, limits)
     outputs = outputs_fingerprint(size, video, meshes, body_meshes)
     record = RunRecord()
     first_frame = 0
