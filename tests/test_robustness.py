@@ -160,3 +160,18 @@ def test_resume_refuses_a_checkpoint_of_other_settings(tmp_path, monkeypatch, ca
     assert run_cli(argv + ["--set", "cloth.material=silk", "--resume"]) == 2
     assert "other scene settings" in capsys.readouterr().err
     assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
+
+
+def test_serial_launches_are_bounded_so_interrupts_are_honoured():
+    """A frame of many substeps on small cloth runs as several launches, each at most
+    SERIAL_LAUNCH_WORK particle-substeps (Ctrl-C waits for the launch running), in order."""
+    from taichi_cloth.physics.integrators.base import SERIAL_LAUNCH_WORK
+    simulation = Simulation.from_scene("sheet", ("cloth.resolution=[10, 10]",
+                                                 "simulation.dt=1e-7"))
+    integrator = simulation.integrator
+    assert integrator.serial
+    substeps = simulation.time_step.substeps_per_frame
+    counts = integrator.launch_counts(substeps)
+    assert sum(counts) == substeps and len(counts) > 1
+    assert max(counts) * simulation.model.particle_count <= SERIAL_LAUNCH_WORK
+    assert integrator.launch_counts(7) == [7]

@@ -8,8 +8,10 @@ particle updates) and runs many per launch, in one of two ways:
 - parallel (large cloth): ``_advance`` unrolls ``substep_batch`` substeps with ``ti.static``, each
   loop a parallel loop over the particles;
 - serial (cloth of at most ``serial_particle_limit`` particles, where the hand-offs cost more
-  than a second core gains): ``_advance_serial`` runs a whole frame's substeps in one launch, a
-  serial loop over substeps around serial particle loops, on one thread.
+  than a second core gains): ``_advance_serial`` runs a frame's substeps in as few launches as
+  keep each under ``SERIAL_LAUNCH_WORK`` particle-substeps (a fraction of a second: Ctrl-C and
+  SIGTERM are honoured between launches), a serial loop over substeps around serial particle
+  loops, on one thread.
 
 Substep k reads state ``a`` and writes ``b`` when k is even, the reverse when odd; it is also
 told ``k % 2``, the packed copy (``PackedGrid.pack``) that holds its input when the integrator carries
@@ -27,6 +29,8 @@ from taichi_cloth.runtime import runs_on_cpu
 # docs/performance.md, "Launch sizes"); an integrator with more work per particle sets its own
 # ``serial_particle_limit``.
 SERIAL_PARTICLE_LIMIT = 32768
+# Particle-substeps per serial launch at most: ~0.05–0.5 s at 1e7–1e8 particle-substeps/s.
+SERIAL_LAUNCH_WORK = 5_000_000
 
 
 @ti.data_oriented
@@ -65,7 +69,8 @@ class Integrator:
     def launch_counts(self, count: int) -> list[int]:
         """Substeps per kernel launch for ``count`` substeps."""
         if self.serial:
-            return [count]
+            chunk = max(1, SERIAL_LAUNCH_WORK // self.model.particle_count)
+            return [chunk] * (count // chunk) + ([count % chunk] if count % chunk else [])
         batch = self.substep_batch
         return [batch] * (count // batch) + [1] * (count % batch)
 
