@@ -3,6 +3,7 @@ and hands it to the command's module: ``output.run`` (simulate, render), ``studi
 ``studies.bench``; lists what ships."""
 
 import argparse
+import errno
 import math
 import signal
 import sys
@@ -274,5 +275,23 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         sys.stderr.write("interrupted; the files written so far are whole\n")
         return 130
+    except OSError as error:  # the file system said no: one line, no traceback
+        sys.stderr.write(f"error: {file_system_message(error)}\n")
+        return 2 if error.errno in PATH_ERRORS else 1
     return 1
+
+
+# errno values that mean the path given is wrong (exit 2); others (a full disk, I/O) exit 1
+PATH_ERRORS = {errno.ENOENT, errno.ENOTDIR, errno.EISDIR, errno.ENAMETOOLONG, errno.ELOOP,
+               errno.EACCES, errno.EPERM, errno.EEXIST, errno.EROFS}
+
+
+def file_system_message(error: OSError) -> str:
+    """``path: reason`` of a file-system error, on one line."""
+    where = error.filename if error.filename is not None else ""
+    reason = error.strerror or str(error)
+    text = f"{where}: {reason}" if where else reason
+    if error.errno == errno.ENOSPC:
+        text += " (the disk is full: the frames written so far are whole)"
+    return " ".join(text.split())
 

@@ -127,3 +127,40 @@ def test_a_run_past_the_machine_or_the_time_bound_is_refused_before_the_work(arg
     assert code == 2 and len(error.splitlines()) == 1
     assert all(word in error for word in words)
     assert not out.exists()
+
+
+def run_main(argv, capsys) -> tuple[int, str]:
+    try:
+        code = cli.main(argv)
+    except SystemExit as stop:
+        code = stop.code
+    return code, capsys.readouterr().err.strip()
+
+
+@pytest.mark.parametrize("obstacle", ["file named frames", "folder named stats.json",
+                                      "out is a symlink loop"])
+def test_obstacles_in_the_output_folder_are_one_line_exit_2(obstacle, tmp_path, capsys):
+    out = tmp_path / "out"
+    if obstacle == "out is a symlink loop":
+        out.symlink_to(out)
+    else:
+        out.mkdir()
+        if obstacle == "file named frames":
+            (out / "frames").write_text("not a folder")
+        else:
+            (out / "stats.json").mkdir()
+    argv = ["skirt", "--set", SMALL[0], "--frames", "1", "--out", str(out)]
+    argv = ["render", *argv, "--width", "64", "--height", "48"] \
+        if obstacle == "file named frames" else ["simulate", *argv]
+    code, error = run_main(argv, capsys)
+    assert code == 2 and len(error.splitlines()) == 1 and "Traceback" not in error, error
+    if obstacle == "file named frames":
+        assert (out / "frames").read_text() == "not a folder"
+
+
+def test_the_resume_hint_names_this_interpreter_and_resume_once(monkeypatch):
+    from taichi_cloth.output.run import resume_command
+    monkeypatch.setattr(sys, "argv", ["x", "simulate", "hula", "--resume", "--frames", "3"])
+    command = resume_command()
+    assert command.count("--resume") == 1 and "-m taichi_cloth simulate hula" in command
+    assert command.split()[0].endswith("python") or "python" in command.split()[0]

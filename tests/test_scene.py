@@ -147,3 +147,10 @@ def test_a_simulation_allocates_its_fields_in_few_snode_trees():
     before = program.get_snode_tree_size()
     Simulation(scene)
     assert program.get_snode_tree_size() - before <= 3
+
+
+@pytest.mark.parametrize("position", ["[0.0, 0.8, 0.0]", "[0.0, 3.0, 0.0]"])
+def test_a_camera_that_cannot_see_is_refused(position):
+    with pytest.raises(InputError, match="render.camera_position"):
+        load_scene("hula", ("render.camera_lookat=[0.0, 0.8, 0.0]",
+                            f"render.camera_position={position}"))

@@ -352,7 +352,21 @@ def load_scene(name_or_path: str, overrides: tuple[str, ...] = ()) -> Scene:
                                            "(a race not found yet); use arch = \"cpu\" or an "
                                            "explicit integrator")
     check_precision_range(ctx, scene)
+    check_camera(ctx, scene.render)
     return scene
+
+
+def check_camera(ctx: SourceContext, render: "RenderConfig") -> None:
+    """The camera must look somewhere, and not straight along the up axis (y), where its
+    left and right are undefined: either gave blank frames with exit 0."""
+    view = np.subtract(render.camera_lookat, render.camera_position, dtype=float)
+    length = float(np.linalg.norm(view))
+    if not length > 1e-6:
+        raise ctx.error("render.camera_position", "the camera sits on its look-at point; move "
+                                                  "it away from render.camera_lookat")
+    if np.hypot(view[0], view[2]) < 1e-3 * length:
+        raise ctx.error("render.camera_position", "the camera looks straight along the up axis "
+                                                  "(y); move it or the look-at point sideways")
 
 
 F32_MAX, F32_TINY = float(np.finfo(np.float32).max), float(np.finfo(np.float32).tiny)

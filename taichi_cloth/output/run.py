@@ -6,6 +6,7 @@ import contextlib
 import json
 import os
 import re
+import shlex
 import sys
 import tempfile
 import time
@@ -173,7 +174,7 @@ def run_in_folder(scene: Scene, frame_count: int, folder: OwnedFolder, quiet: bo
 
         try:
             simulation.run(frame_count, on_frame, record, first_frame)
-        except (KeyboardInterrupt, SystemExit, UnstableError) as stop:
+        except (KeyboardInterrupt, SystemExit, UnstableError, OSError) as stop:
             keep_partial_run(simulation, record, folder, finished, stop, resume, outputs)
             raise
         for mesh, _ in series:
@@ -212,14 +213,22 @@ def keep_partial_run(simulation, record, folder: OwnedFolder, finished: dict, st
                      resumed: bool, outputs: str) -> None:
     """After a stop: stats.json for the whole frames done (marked ``stopped``) and, when
     interrupted (not unstable), a checkpoint and how to resume on stderr; the manifest of what
-    the run wrote."""
+    the run wrote. After a file-system error (a full disk) as much of it as there is room for:
+    the error that stopped the run is the one reported."""
     if not finished:
         return
     directory = folder.directory
     try:
         write_partial_outputs(simulation, record, directory, finished, stop, outputs)
+    except OSError:
+        if not isinstance(stop, OSError):
+            raise
     finally:
-        folder.finish(resumed)
+        try:
+            folder.finish(resumed)
+        except OSError:
+            if not isinstance(stop, OSError):
+                raise
 
 
 def write_partial_outputs(simulation, record, directory: Path, finished: dict, stop,
@@ -229,7 +238,8 @@ def write_partial_outputs(simulation, record, directory: Path, finished: dict, s
     record.frames = record.frames[:done]
     stats = simulation.stats(record)
     unstable = isinstance(stop, UnstableError)
-    stats["stopped"] = "unstable" if unstable else "interrupted"
+    stats["stopped"] = "unstable" if unstable else \
+        "file-system error" if isinstance(stop, OSError) else "interrupted"
     write_json(directory / "stats.json", stats)
     if unstable:
         return
@@ -237,9 +247,22 @@ def write_partial_outputs(simulation, record, directory: Path, finished: dict, s
         next_frame=done, snapshot=finished["snapshot"], retries=record.retries,
         fingerprint=scene_fingerprint(simulation.scene),
         cg_iterations=np.array(record.cg_iterations, np.int64), outputs=outputs))
-    command = " ".join(["python -m taichi_cloth", *sys.argv[1:]])
+    if isinstance(stop, OSError):  # its own one line follows
+        return
     sys.stderr.write(f"stopped after frame {done - 1}: frames 0–{done - 1} and stats.json are "
-                     f"in {directory}; to continue: {command} --resume\n")
+                     f"in {directory}; to continue: {resume_command()}\n")
+
+
+def resume_command() -> str:
+    """The command that continues this run: this interpreter (relative to the working folder
+    when inside it, e.g. .venv/bin/python), the same arguments, --resume once."""
+    python = Path(sys.executable)
+    try:
+        python = python.relative_to(Path.cwd())
+    except ValueError:
+        pass
+    arguments = [argument for argument in sys.argv[1:] if argument != "--resume"]
+    return shlex.join([str(python), "-m", "taichi_cloth", *arguments, "--resume"])
 
 
 def summary(stats: dict, directory: Path) -> str:
