@@ -84,7 +84,7 @@ RUN_KEYS = [key for key in KEYS if key not in (
     "simulation.arch", "render.subdivision", "render.width", "render.height")]
 
 
-@settings(max_examples=12, **FUZZ)
+@settings(max_examples=8, **FUZZ)
 @given(key_value=KEY_VALUES.filter(lambda pair: pair[0] in RUN_KEYS))
 def test_a_tiny_run_exits_0_2_or_3(key_value, tmp_path_factory, capsys):
     key, value = key_value
