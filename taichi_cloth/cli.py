@@ -8,6 +8,8 @@ import math
 import signal
 import sys
 
+import numpy as np
+
 from taichi_cloth.config.materials import PRESETS
 from taichi_cloth.config.scene import MESH_FORMATS, load_scene, shipped_scene_names
 from taichi_cloth.errors import InputError, UnstableError
@@ -241,6 +243,12 @@ def stop_on_terminate(signum, frame):
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     signal.signal(signal.SIGTERM, stop_on_terminate)
+    with np.errstate(all="ignore"):  # bad numbers end in one line of their own, not warnings
+        return run_command(args)
+
+
+def run_command(args) -> int:
+    """The command ``args`` names, its errors turned into one line and an exit code."""
     try:
         if args.command == "simulate":
             return simulate(args.scene, args.overrides, args.frames, args.out,

@@ -123,3 +123,12 @@ def test_bad_flags_exit_2_with_one_line_naming_the_flag(flags, named, capsys, tm
     assert main(["compare", "sheet", "--out", str(tmp_path), *flags]) == 2
     error = capsys.readouterr().err.strip()
     assert len(error.splitlines()) == 1 and named in error and "Traceback" not in error
+
+
+@pytest.mark.parametrize("flag, value", [("--dts", "5e-324"), ("--reference-dt", "1e-300"),
+                                         ("--video-dt", "1e-12")])
+def test_a_step_too_small_to_run_is_one_line_exit_2(flag, value, capsys):
+    from taichi_cloth.cli import main
+    assert main(["compare", "sheet", flag, value]) == 2
+    error = capsys.readouterr().err.strip()
+    assert len(error.splitlines()) == 1 and flag in error

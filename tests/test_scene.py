@@ -59,6 +59,7 @@ BAD_INPUT = [
     (("cloth.bending=springs", "effects.bending.scale=2"), ["effects.bending", "curvature"]),
     (("output.meshes=['stl']",), ["output.meshes[0]", "'obj'"]),
     (("effects.gravity.g=1e39",), ["effects.gravity.g", "float32", "f64"]),
+    (("scene.duration=1e308", "simulation.precision=f64"), ["scene.duration", "<= 1000000"]),
     (("cloth.material.density=1e-300",), ["cloth.material.density", "float32"]),
     (("cloth.size=[1e-300, 1e-300]",), ["cloth.size[0]", "float32"]),
     (("cloth.resolution",), ["--set cloth.resolution", "KEY=VALUE"]),

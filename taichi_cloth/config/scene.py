@@ -34,7 +34,8 @@ MESH_FORMATS = ("obj", "ply", "vtu", "xdmf")
 class SceneInfo:
     name: str = setting("", "str", doc="scene name; defaults to the file's stem")
     description: str = setting("", "str")
-    duration: float = setting(4.0, "float", low=0.0, low_inclusive=False, doc="seconds")
+    duration: float = setting(4.0, "float", low=0.0, high=1e6, low_inclusive=False,
+                              doc="seconds (at most 1e6: eleven days of animation)")
     fps: int = setting(30, "int", low=1, high=1000, doc="frames per second")
 
 

@@ -71,9 +71,17 @@ def integrator_names(text: str | None) -> tuple[str, ...]:
     return choice_list(text, "--integrators", INTEGRATORS, "integrator")
 
 
+SMALLEST_STEP = 1e-7  # s: a step below this would need millions of substeps a frame
+
+
 def seconds_list(text: str | None, flag: str) -> tuple[float, ...]:
-    """A comma list of positive, finite seconds for ``flag`` (--dts, --duration, ...)."""
-    return () if text is None else number_list(text, flag)
+    """A comma list of positive, finite seconds for ``flag`` (--dts, --duration, ...); a time
+    step (--dts, --reference-dt, --video-dt) at least ``SMALLEST_STEP``."""
+    values = () if text is None else number_list(text, flag)
+    if flag != "--duration" and any(value < SMALLEST_STEP for value in values):
+        raise InputError(f"{flag} {text}: a step below {SMALLEST_STEP:g} s would take millions "
+                         f"of substeps a frame; give larger steps")
+    return values
 
 
 def seconds_value(text: str | None, flag: str) -> float | None:
