@@ -10,4 +10,6 @@ import os
 
 # Taichi prints a banner on import; our commands print their own summary instead.
 os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "false")
-os.environ.setdefault("TI_LOG_LEVEL", "warn")
+# Errors only: a missing backend's warnings (no libcuda, falling back) would add lines to our
+# one-line error messages. TI_LOG_LEVEL set by the user wins.
+os.environ.setdefault("TI_LOG_LEVEL", "error")

@@ -278,7 +278,7 @@ def run_command(args) -> int:
         if args.command == "materials":
             return list_materials()
     except (InputError, UnstableError) as error:
-        sys.stderr.write(f"error: {error}\n")
+        sys.stderr.write(f"error: {' '.join(str(error).split())}\n")  # one line, whatever
         return error.exit_code
     except KeyboardInterrupt:
         sys.stderr.write("interrupted; the files written so far are whole\n")

@@ -175,3 +175,23 @@ def test_serial_launches_are_bounded_so_interrupts_are_honoured():
     assert sum(counts) == substeps and len(counts) > 1
     assert max(counts) * simulation.model.particle_count <= SERIAL_LAUNCH_WORK
     assert integrator.launch_counts(7) == [7]
+
+
+def test_a_texture_that_is_not_an_image_is_one_line(tmp_path, capsys):
+    fake = tmp_path / "fake.png"
+    fake.write_text("not an image")
+    assert run_cli(["render", "hula", "--set", f"render.texture='{fake}'", "--frames", "1",
+                    "--out", str(tmp_path / "out")]) == 2
+    error = capsys.readouterr().err.strip()
+    assert len(error.splitlines()) == 1 and "render.texture" in error
+
+
+def test_arch_cuda_without_cuda_is_one_line_in_a_fresh_process(tmp_path):
+    result = subprocess.run([sys.executable, "-m", "taichi_cloth", "simulate", "sheet", "--arch",
+                             "cuda", "--frames", "1", "--out", str(tmp_path / "out")],
+                            capture_output=True, text=True, timeout=120)
+    if result.returncode == 0:
+        pytest.skip("this machine has CUDA")
+    assert result.returncode == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and "--arch cuda" in lines[0]
