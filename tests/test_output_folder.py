@@ -164,3 +164,11 @@ def test_the_resume_hint_names_this_interpreter_and_resume_once(monkeypatch):
     command = resume_command()
     assert command.count("--resume") == 1 and "-m taichi_cloth simulate hula" in command
     assert command.split()[0].endswith("python") or "python" in command.split()[0]
+
+
+def test_a_bad_output_dir_from_the_scene_is_named_as_such(tmp_path, capsys):
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    code, error = run_main(["simulate", "sheet", "--set", f"output.dir='{blocker / 'sub'}'",
+                            "--frames", "1"], capsys)
+    assert code == 2 and error.startswith("error: output.dir ") and len(error.splitlines()) == 1

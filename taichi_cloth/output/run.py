@@ -103,9 +103,11 @@ def run_scene(scene: Scene, frame_count: int, directory: Path, quiet: bool,
     ``resume`` continues from). The run owns ``directory`` while it writes (``OwnedFolder``:
     locked; afterwards only files of an earlier run's manifest are removed, never others).
     ``limits``: memory and time beyond which the run stops before the work (``budget``)."""
-    check_writable(directory, "--out")
+    # the scene's [output] dir when that is where it goes, else the flag
+    flag = "output.dir" if scene.output.dir and directory == Path(scene.output.dir) else "--out"
+    check_writable(directory, flag)
     check_memory(scene, limits)
-    with OwnedFolder(directory) as folder:
+    with OwnedFolder(directory, flag) as folder:
         return run_in_folder(scene, frame_count, folder, quiet, size, video, meshes,
                              body_meshes, resume, limits)
 
