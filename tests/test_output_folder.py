@@ -172,3 +172,29 @@ def test_a_bad_output_dir_from_the_scene_is_named_as_such(tmp_path, capsys):
     code, error = run_main(["simulate", "sheet", "--set", f"output.dir='{blocker / 'sub'}'",
                             "--frames", "1"], capsys)
     assert code == 2 and error.startswith("error: output.dir ") and len(error.splitlines()) == 1
+
+
+def test_a_full_disk_is_one_line_exit_1_and_keeps_the_whole_frames(tmp_path, capsys,
+                                                                     monkeypatch):
+    """The disk fills up while frame 2 is written: exit 1 with one line; frames 0 and 1,
+    stats.json for them and a checkpoint remain (there was room for those)."""
+    import errno as errno_codes
+
+    from taichi_cloth.output import run as run_module
+    real_write = run_module.write_png
+
+    def write_until_full(target, image):
+        if target.name == "frame_00002.png":
+            raise OSError(errno_codes.ENOSPC, "No space left on device", str(target))
+        real_write(target, image)
+
+    monkeypatch.setattr(run_module, "write_png", write_until_full)
+    out = tmp_path / "out"
+    code, error = run_main(["render", "skirt", "--set", SMALL[0], "--frames", "3", "--out",
+                            str(out), "--width", "64", "--height", "48"], capsys)
+    assert code == 1 and len(error.splitlines()) == 1 and "disk is full" in error
+    assert sorted(p.name for p in (out / "frames").iterdir()) == ["frame_00000.png",
+                                                                  "frame_00001.png"]
+    stats = json.loads((out / "stats.json").read_text())
+    assert stats["stopped"] == "file-system error" and len(stats["per_frame"]) == 2
+    assert (out / "checkpoint.npz").exists() and not (out / LOCK_NAME).exists()
