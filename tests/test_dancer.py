@@ -45,7 +45,7 @@ def test_hula_at_the_papers_step_stays_finite_on_the_waist_and_outside_the_body(
 
 def test_skirt_is_in_contact_with_the_legs_while_dancing():
     """Contact is exercised, not vacuous: particles come within the margin of some capsule."""
-    scene = load_scene("hula")
+    scene = load_scene("hula", ("cloth.resolution=[32, 14]",))
     simulation = Simulation(scene)
     rig = simulation.body_rig
     clearances = []
@@ -70,6 +70,7 @@ def test_drape_comes_to_rest_on_the_bar():
 
 @pytest.mark.parametrize("layout", ["coarse", "split"])
 def test_both_capsule_layouts_run(layout):
-    simulation, record, _ = run_scene("hula", f"body.capsules={layout}", frames=10)
+    simulation, record, _ = run_scene("hula", f"body.capsules={layout}",
+                                      "cloth.resolution=[32, 14]", frames=10)
     assert simulation.body_rig.capsule_count == {"coarse": 6, "split": 13}[layout]
     assert record.max_penetration < 0.01
