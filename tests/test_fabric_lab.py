@@ -117,3 +117,14 @@ def test_bad_lab_input_is_one_line_exit_2(argv, flag, capsys):
     assert main(argv) == 2
     message = capsys.readouterr().err.strip()
     assert flag in message and "\n" not in message
+
+
+def test_each_specimen_starts_from_its_own_ripple_on_every_mesh():
+    """The start ripple is a function of the angle alone (so a refined mesh meets the same
+    start), its largest value is RIPPLE, and two specimens start differently."""
+    from taichi_cloth.studies.drape import RIPPLE, start_ripple
+    coarse = np.linspace(0.0, 2 * np.pi, 64, endpoint=False)
+    fine = np.linspace(0.0, 2 * np.pi, 256, endpoint=False)
+    np.testing.assert_allclose(start_ripple(fine, 1)[::4], start_ripple(coarse, 1), rtol=1e-12)
+    assert np.abs(start_ripple(fine, 0)).max() == pytest.approx(RIPPLE, rel=0.01)
+    assert np.abs(start_ripple(fine, 0) - start_ripple(fine, 1)).max() > 0.3 * RIPPLE

@@ -123,9 +123,9 @@ def start_ripple(angle: np.ndarray, specimen: int) -> np.ndarray:
     amplitude = rng.uniform(0.5, 1.0, len(RIPPLE_MODES))
     phase = rng.uniform(0.0, 2 * np.pi, len(RIPPLE_MODES))
     fine = np.linspace(0.0, 2 * np.pi, 2048, endpoint=False)
-    def wave(theta):
-        return np.sum(amplitude * np.sin(np.multiply.outer(theta, RIPPLE_MODES) + phase), axis=-1)
-    return RIPPLE * wave(angle) / np.abs(wave(fine)).max()
+    wave, peak = (np.sum(amplitude * np.sin(np.multiply.outer(theta, RIPPLE_MODES) + phase),
+                         axis=-1) for theta in (angle, fine))
+    return RIPPLE * wave / np.abs(peak).max()
 
 
 def settle_dynamically(simulation, specimen: int) -> None:
