@@ -1,11 +1,15 @@
-"""Still-air drag: the face pressure (``aerodynamics``) of air at rest on each moving face."""
+"""Still-air drag: the face pressure (``aerodynamics``) of air at rest on each moving face.
+
+Each face's pressure is computed once per force evaluation (``prepare``: its normal, area and
+mean velocity), and each particle gathers a third of its faces' (in the fixed order of
+``model.particle_triangle``), instead of every particle recomputing its six faces."""
 
 from dataclasses import dataclass
 
 import taichi as ti
 
 from taichi_cloth.effects.aerodynamics import face_damping, face_pressure, face_velocity
-from taichi_cloth.effects.base import Effect
+from taichi_cloth.effects.base import Effect, EffectContext
 from taichi_cloth.settings import setting
 
 
@@ -24,16 +28,27 @@ class Drag(Effect):
     Settings = DragSettings
     has_jacobian = True  # drag is stiff on light cloth: the implicit solver treats it so
 
-    def __init__(self, settings: DragSettings, context=None):
+    def __init__(self, settings: DragSettings, context: EffectContext):
         super().__init__(settings, context)
         self.factor = 0.5 * settings.air_density * settings.coefficient
+        model = context.model
+        self.model = model
+        # each face's pressure (without ½ρC_d) [N] at the last ``prepare``
+        self.face_force = ti.Vector.field(3, model.real, max(1, model.triangle_count))
+
+    @ti.func
+    def prepare(self, x, v, t):
+        """Every face's pressure of still air, once."""
+        model = self.model
+        for i_t in range(model.triangle_count):
+            self.face_force[i_t] = face_pressure(model, x, i_t, -face_velocity(model, v, i_t))
 
     @ti.func
     def force(self, model, x, v, i_p, t):
+        """A third of the pressure of each of the particle's faces (after ``prepare``)."""
         f = ti.Vector.zero(model.real, 3)
         for k in range(model.particle_triangle_start[i_p], model.particle_triangle_start[i_p + 1]):
-            i_t = model.particle_triangle[k]
-            f += face_pressure(model, x, i_t, -face_velocity(model, v, i_t))
+            f += self.face_force[model.particle_triangle[k]]
         return model.real(self.factor) / 3.0 * f
 
     @ti.func
