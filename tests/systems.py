@@ -92,3 +92,13 @@ class SpringOscillator:
 
     def energy(self, u: float, v: float) -> float:
         return 0.5 * (v * v + self.omega ** 2 * u * u)
+
+
+def energy_gradient(energy, x: np.ndarray, step: float) -> np.ndarray:
+    """∂energy/∂x by central differences of ``step`` in every coordinate of x (N, 3)."""
+    gradient = np.zeros_like(x)
+    for index in np.ndindex(*x.shape):
+        offset = np.zeros_like(x)
+        offset[index] = step
+        gradient[index] = (energy(x + offset) - energy(x - offset)) / (2 * step)
+    return gradient
