@@ -44,6 +44,7 @@ class FrameMetrics:
     center_of_mass: list
     penetrating_samples: int = 0  # surface samples inside a collider
     mean_speed: float = 0.0  # of the free particles [m/s]
+    self_intersections: int = 0  # pairs of non-adjacent triangles that meet (intersections.py)
     cg_iterations: float | None = None  # implicit integrator: mean CG iterations per step
     extra: dict = field(default_factory=dict)  # the effects' own metrics (bending_energy [J])
 
@@ -80,3 +81,7 @@ class RunRecord:
     @property
     def max_penetrating_samples(self) -> int:
         return max((f.penetrating_samples for f in self.frames), default=0)
+
+    @property
+    def max_self_intersections(self) -> int:
+        return max((f.self_intersections for f in self.frames), default=0)

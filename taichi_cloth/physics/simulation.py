@@ -34,6 +34,7 @@ from taichi_cloth.physics.control import Control
 from taichi_cloth.physics.forces import Forces
 from taichi_cloth.physics.integrators import INTEGRATORS, make_integrator
 from taichi_cloth.physics.integrators.conjugate_gradient import SolverBreakdown
+from taichi_cloth.physics.intersections import IntersectionCounter
 from taichi_cloth.physics.metrics import (FrameMetrics, RunRecord, spring_energy, stretch_strain,
                                           surface_samples)
 from taichi_cloth.physics.model import Model
@@ -70,6 +71,8 @@ class Simulation:
         waist_height = self.body_rig.waist_height if self.body_rig is not None else None
         self.garment = build_garment(scene.cloth, scene.material, waist_height, scene.path)
         self.surface_edges = self.garment.edges
+        self.intersections = IntersectionCounter(self.garment.triangles,
+                                                 self.garment.particle_count)
         self.settle_report = None  # what ``settle`` did (a resumed run copies it back)
         self.model = Model(self.garment, scene.simulation.precision,
                            **model_options(scene.effects))
@@ -174,7 +177,8 @@ class Simulation:
         """Metrics of a (checked) state x [m], v [m/s] at ``frame``: energies (kinetic;
         potential = the effects' + the springs'), strain, penetration of the whole surface
         (particles, edge midpoints and triangle centroids: ``metrics.surface_samples``) into
-        every collider, mean speed, centre of mass."""
+        every collider, mean speed, pairs of triangles through each other
+        (``intersections``), centre of mass."""
         mass = self.model.host_mass
         strain = stretch_strain(self.model, x) if self.model.stretch_count else np.zeros(1)
         kinetic = 0.5 * float(np.sum(mass * np.sum(v * v, axis=1)))
@@ -194,6 +198,7 @@ class Simulation:
             max_penetration=float(depth.max(initial=0.0)),
             penetrating_samples=int(np.count_nonzero(depth)),
             mean_speed=self.mean_free_speed(v),
+            self_intersections=self.intersections.count(x),
             center_of_mass=[float(c) for c in np.sum(mass[:, None] * x, 0) / np.sum(mass)],
             extra=extra)
 
@@ -368,6 +373,7 @@ class Simulation:
             "max_strain": record.max_strain,
             "max_penetration": record.max_penetration,
             "max_penetrating_samples": record.max_penetrating_samples,
+            "max_self_intersections": record.max_self_intersections,
             "surface_samples": self.model.particle_count + len(self.surface_edges)
             + len(self.garment.triangles),
             "wall_seconds": {k: round(v, 4) for k, v in record.wall_seconds.items()},
