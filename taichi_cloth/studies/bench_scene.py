@@ -11,6 +11,8 @@ from taichi_cloth.effects import EFFECTS
 from taichi_cloth.errors import InputError
 from taichi_cloth.studies.timing import substep_row, timed_rate
 
+METRIC_REPEATS = 20  # timings of the self-intersection count on a scene's last frame
+
 
 @ti.data_oriented
 class PassTimer:
@@ -191,7 +193,8 @@ def bench_passes(scene_name: str, seconds: float, repeats: int) -> dict:
 def bench_scene_run(scene_name: str, overrides: tuple = ()) -> dict:
     """The whole scene, every frame, as ``simulate`` runs it (settling first): start-up (the
     scene read, the simulation built, the step chosen), compile, settle and simulated seconds
-    per wall second of the frames, each timed on its own."""
+    per wall second of the frames, each timed on its own (the frames' seconds include the
+    per-frame metrics; the self-intersection count is also timed alone on the last frame)."""
     from taichi_cloth.physics.metrics import RunRecord
     started = time.perf_counter()
     simulation = scene_simulation(scene_name, overrides)
@@ -206,6 +209,11 @@ def bench_scene_run(scene_name: str, overrides: tuple = ()) -> dict:
     simulated = frames / simulation.scene.scene.fps
     substeps = frames * simulation.time_step.substeps_per_frame
     stats = simulation.stats(record)
+    final = simulation.positions()
+    started = time.perf_counter()
+    for _ in range(METRIC_REPEATS):
+        simulation.intersections.count(final)
+    intersection_seconds = (time.perf_counter() - started) / METRIC_REPEATS
     return {"benchmark": "scene-run", "scene": scene_name, "overrides": list(overrides),
             "integrator": simulation.scene.simulation.integrator,
             "size": f"{simulation.garment.columns}x{simulation.garment.rows}",
@@ -219,4 +227,6 @@ def bench_scene_run(scene_name: str, overrides: tuple = ()) -> dict:
             "simulated_seconds_per_wall_second": simulated / wall,
             "wall_seconds_per_simulated_second": wall / simulated,
             "max_strain": stats["max_strain"], "max_penetration": stats["max_penetration"],
+            "max_self_intersections": stats["max_self_intersections"],
+            "self_intersection_ms_per_frame": round(1e3 * intersection_seconds, 3),
             **({"cg": stats["cg"]} if "cg" in stats else {})}
