@@ -46,11 +46,13 @@ import taichi as ti
 
 @dataclass(frozen=True)
 class EffectContext:
-    """What an effect may build on: the cloth's constant ``physics.model.Model`` and the
-    prescribed motion ``physics.control.Control`` (pinned particles, the body's capsules)."""
+    """What an effect may build on: the cloth's constant ``physics.model.Model``, the
+    prescribed motion ``physics.control.Control`` (pinned particles, the body's capsules), and
+    whether the integrator solves with Jacobians (an effect may then skip preparing them)."""
 
     model: Any
     control: Any = None
+    needs_jacobian: bool = True  # whether the integrator asks for ``local_jacobian`` blocks
 
 
 @ti.data_oriented

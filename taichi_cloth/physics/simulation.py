@@ -81,11 +81,12 @@ class Simulation:
                                                       self.garment.positions, self.model.real)
         else:
             self.control = Control(self.garment.pinned, self.garment.positions, self.model.real)
-        self.effects = build_effects(scene.effects, EffectContext(self.model, self.control))
+        integrator_class = INTEGRATORS[scene.simulation.integrator]
+        self.effects = build_effects(scene.effects, EffectContext(
+            self.model, self.control, integrator_class.uses_jacobian))
         self.control.upload()
         for effect in self.effects:
             effect.upload()
-        integrator_class = INTEGRATORS[scene.simulation.integrator]
         self.forces = Forces(self.model, self.effects,
                              packed_grid_for(self.model, integrator_class.packs_springs))
         post_steps = [e.post_step for e in self.effects if e.post_step is not None]

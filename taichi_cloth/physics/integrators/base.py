@@ -43,6 +43,7 @@ class Integrator:
 
     name = ""
     packs_springs = False  # one force evaluation per substep: worth the SIMD spring pass
+    uses_jacobian = False  # whether it asks the effects for their Jacobian blocks
     substep_batch = 2  # parallel substeps per kernel launch (each unrolled copy adds compile time)
     serial_particle_limit = SERIAL_PARTICLE_LIMIT  # cloth this small runs on one thread
 

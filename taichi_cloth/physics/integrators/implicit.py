@@ -50,6 +50,7 @@ from taichi_cloth.physics.model import State
 @ti.data_oriented
 class BackwardEuler(BlockConjugateGradient, Integrator):
     name = "implicit"
+    uses_jacobian = True
     substep_batch = 1
 
     def __init__(self, forces, control, post_step=None, tolerance: float = 1e-3,

@@ -1,0 +1,124 @@
+"""Self-collision (effects/self_collision.py): the forces of a vertex over a triangle and of two
+crossing edges against −∇ of the penalty energy ½·m·k̂·(thickness − d)², with d from closed forms
+(the distance to a plane, the distance between two lines), and momentum conserved; the scene
+`fold` keeps every frame free of intersecting triangles where the metric sees them without it."""
+
+import functools
+import json
+
+import numpy as np
+import pytest
+import taichi as ti
+from systems import assemble, energy_gradient
+
+from taichi_cloth.cli import main
+from taichi_cloth.cloth.garment import Garment
+from taichi_cloth.effects.self_collision import SelfCollision, SelfCollisionSettings
+from taichi_cloth.physics.model import Model
+
+THICKNESS, K_HAT = 0.01, 1e4  # m, 1/s²
+MASS = np.array([0.1, 0.2, 0.3, 0.4, 0.5, 0.6])  # kg
+SETTINGS = SelfCollisionSettings(thickness=THICKNESS, stiffness=K_HAT, damping=0.0, friction=0.0)
+
+
+def two_triangles(positions: np.ndarray) -> Garment:
+    """Triangles (0, 1, 2) and (3, 4, 5), unconnected, with the masses of ``MASS``."""
+    edges = np.array([[0, 1], [1, 2], [0, 2], [3, 4], [4, 5], [3, 5]], np.int32)
+    rest = np.linalg.norm(positions[edges[:, 1]] - positions[edges[:, 0]], axis=1)
+    return Garment(positions=positions, uvs=np.zeros((6, 2)),
+                   triangles=np.array([[0, 1, 2], [3, 4, 5]], np.int32),
+                   springs={"stretch": edges}, spring_stiffness={"stretch": 0.0 * rest},
+                   mass=MASS, pinned=np.zeros(6, bool), columns=6, rows=1, periodic=False,
+                   damping_time=0.0)
+
+
+@functools.cache
+def two_triangle_physics():
+    """The two triangles' model with only the effect, built once (every test moves the same
+    six particles): (model, forces, state, output field)."""
+    rest = np.array([[-1.0, 0, -1], [1, 0, -1], [0, 0, 1], [0, 1, 0], [1, 1, 0], [0, 1, 1]])
+    model = Model(two_triangles(rest), "f64")
+    physics = assemble(model, [(SelfCollision, SETTINGS)])
+    return model, physics.forces, model.state(), ti.Vector.field(3, ti.f64, 6)
+
+
+def self_collision_force(positions: np.ndarray) -> np.ndarray:
+    """The effect's force on every particle at rest at ``positions`` (springs of zero
+    stiffness: the mesh needs edges, the test no other force)."""
+    model, forces, state, out = two_triangle_physics()
+    state.x.from_numpy(positions)
+    state.v.fill(0.0)
+    forces.evaluate(state.x, state.v, 0.0, out)
+    return out.to_numpy()
+
+
+def penalty(distance: float, mass: float) -> float:
+    return 0.5 * mass * K_HAT * max(THICKNESS - distance, 0.0) ** 2
+
+
+def test_vertex_over_a_triangle_is_pushed_off_it_by_minus_the_energy_gradient():
+    """Vertex 3 hovers 4 mm above the inside of triangle (0, 1, 2) in the plane y = 0."""
+    positions = np.array([[-1.0, 0, -1], [1, 0, -1], [0, 0, 1],
+                          [0.1, 0.004, 0.2], [0.1, 1.0, 0.2], [0.6, 1.0, 0.4]])
+
+    def energy(x):
+        normal = np.cross(x[1] - x[0], x[2] - x[0])
+        normal /= np.linalg.norm(normal)
+        return penalty(abs((x[3] - x[0]) @ normal), MASS[3])
+
+    force = self_collision_force(positions)
+    np.testing.assert_allclose(force, -energy_gradient(energy, positions, 1e-7), atol=1e-6)
+    assert force[3, 1] == pytest.approx(MASS[3] * K_HAT * 0.006, rel=1e-9)
+    np.testing.assert_allclose(force.sum(axis=0), 0.0, atol=1e-12)
+
+
+def test_crossing_edges_are_pushed_apart_by_minus_the_energy_gradient():
+    """Edge 0–1 along x at y = 0 and edge 3–4 along z at y = 5 mm, the triangles turned away
+    from each other: only the edge pair is within the thickness."""
+    positions = np.array([[-1.0, 0, 0], [1, 0, 0], [0, -1, 0],
+                          [0, 0.005, -1], [0.2, 0.005, 1], [0, 1, 0]])
+    mean_mass = MASS[[0, 1, 3, 4]].mean()
+
+    def energy(x):
+        across = np.cross(x[1] - x[0], x[4] - x[3])
+        return penalty(abs((x[3] - x[0]) @ across) / np.linalg.norm(across), mean_mass)
+
+    force = self_collision_force(positions)
+    np.testing.assert_allclose(force, -energy_gradient(energy, positions, 1e-7), atol=1e-6)
+    np.testing.assert_allclose(force.sum(axis=0), 0.0, atol=1e-12)
+    assert force[[3, 4], 1].sum() == pytest.approx(mean_mass * K_HAT * 0.005, rel=1e-6)
+
+
+def test_far_apart_nothing_acts():
+    positions = np.array([[-1.0, 0, -1], [1, 0, -1], [0, 0, 1],
+                          [0.1, 0.02, 0.2], [0.1, 1.0, 0.2], [0.6, 1.0, 0.4]])
+    assert np.all(self_collision_force(positions) == 0.0)
+
+
+def test_thickness_of_half_an_edge_or_more_is_one_line_exit_2(capsys):
+    assert main(["simulate", "fold", "--frames", "1", "--set",
+                 "effects.self_collision.thickness=0.5", "--out", "/nonexistent/x"]) == 2
+    message = capsys.readouterr().err.strip()
+    assert "effects.self_collision.thickness" in message and "\n" not in message
+
+
+@pytest.fixture(scope="module")
+def fold_runs(tmp_path_factory):
+    """`fold` at 12 × 12 for 16 frames (its halves meet at frame 13), with and without
+    self-collision: the stats of each."""
+    stats = {}
+    for label, extra in (("on", []), ("off", ["--set", "effects.self_collision=false"])):
+        out = tmp_path_factory.mktemp(f"fold_{label}")
+        assert main(["simulate", "fold", "--quiet", "--frames", "16", "--set",
+                     "cloth.resolution=[12, 12]", "--out", str(out), *extra]) == 0
+        stats[label] = json.loads((out / "stats.json").read_text())
+    return stats
+
+
+def test_fold_never_passes_through_itself_and_does_without_self_collision(fold_runs):
+    on, off = fold_runs["on"], fold_runs["off"]
+    assert "self_collision" in on["effects"] and "self_collision" not in off["effects"]
+    assert all(frame["self_intersections"] == 0 for frame in on["per_frame"])
+    assert on["per_frame"][-1]["self_collision_overflow"] == 0
+    assert on["max_strain"] < 0.1 and on["max_penetration"] < 0.004
+    assert off["max_self_intersections"] > 0
