@@ -18,19 +18,21 @@ on the relative slip u):
 The elastic part is −∇ of the energy ½·m·k̂·(thickness − d)² (the closest points move
 tangentially to first order), so momentum is conserved and the energy balance holds.
 
-Broad phase (``physics.spatial_hash``), rebuilt at every force evaluation in the kernel: the
-particles, the edge midpoints and the triangle centroids, each on a grid whose cell is the longest
-current edge plus the thickness; both points of any pair above then lie within one cell of each
-other, so the 27 cells around one find the other.
+Broad phase (``effects/spatial_hash.py``), in the kernel: the particles, the triangle centroids
+and the edge midpoints hashed together on a grid whose cell is the longest current edge plus the
+reach (thickness + padding); each item's candidate list holds the pairable items within that
+reach (bounding spheres, then the exact distance), in ascending order, at most ``CANDIDATES``
+(more count as ``self_collision_overflow``). The lists are rebuilt when a particle has moved half
+the padding since the last build: a pair not listed was farther than the reach and has closed by
+at most the padding, so it is still beyond the thickness.
 
-Gathered, no atomics on forces: a pair's force is computed by each primitive it acts on, in the
-fixed order of the hashed buckets. A particle sums its vertex–triangle forces (query: the
-centroids around it); a triangle its corners' shares (query: the particles around its centroid),
-into a field per corner; an edge its ends' shares of edge–edge forces (query: the midpoints
-around its own), into a field per end, every edge pair evaluated in one order (lower edge
-first). ``force`` then gathers a particle's own sum and its triangles' and edges' shares through
-static incidence lists. The computations of one pair are the same function of the same numbers:
-they match to the bit, and a run is bit-reproducible on the CPU.
+Gathered, no atomics on forces: a pair's force is computed by each primitive it acts on, over the
+candidate lists: a particle sums its vertex–triangle forces, a triangle its corners' shares into
+a field per corner, an edge its ends' shares of edge–edge forces into a field per end, every edge
+pair evaluated in one order (lower edge first). ``force`` then gathers a particle's own sum and
+its triangles' and edges' shares through static incidence lists. The computations of one pair
+are the same function of the same numbers: they match to the bit, and a run is bit-reproducible
+on the CPU.
 
 Implicit integrator: each slot also keeps w²·(−m·k̂·n·nᵀ) and w² times the dashpot and friction
 block (``penalty_damping_block``); a particle's blocks are their gathered sum, the couplings
@@ -52,7 +54,8 @@ from taichi_cloth.effects.penalty import (normal_force_magnitude, penalty_dampin
                                           penalty_force)
 from taichi_cloth.errors import InputError
 from taichi_cloth.gather import incidence_lists
-from taichi_cloth.physics.spatial_hash import SpatialHash
+from taichi_cloth.effects.proximity import closest_between_segments, closest_on_triangle
+from taichi_cloth.effects.spatial_hash import SpatialHash
 from taichi_cloth.settings import setting
 
 CANDIDATES = 32  # the longest candidate list of a particle, triangle or edge
@@ -68,63 +71,6 @@ class SelfCollisionSettings:
                                doc="penalty stiffness per unit particle mass, 1/s²")
     damping: float = setting(0.5, "float", low=0.0, doc="normal damping ratio ζ")
     friction: float = setting(0.3, "float", low=0.0, doc="Coulomb coefficient μ")
-
-
-@ti.func
-def closest_on_triangle(p, a, b, c, real: ti.template()):
-    """Barycentric weights (w_a, w_b, w_c) of the point of triangle (a, b, c) closest to p
-    (Ericson §5.1.5: the Voronoi regions of its vertices, edges and face)."""
-    ab, ac = b - a, c - a
-    d1, d2 = ab.dot(p - a), ac.dot(p - a)
-    d3, d4 = ab.dot(p - b), ac.dot(p - b)
-    d5, d6 = ab.dot(p - c), ac.dot(p - c)
-    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
-    weights = ti.Vector([1.0, 0.0, 0.0], real)
-    if d1 <= 0 and d2 <= 0:
-        weights = ti.Vector([1.0, 0.0, 0.0], real)
-    elif d3 >= 0 and d4 <= d3:
-        weights = ti.Vector([0.0, 1.0, 0.0], real)
-    elif vc <= 0 and d1 >= 0 and d3 <= 0:
-        along = d1 / (d1 - d3)
-        weights = ti.Vector([1 - along, along, 0.0], real)
-    elif d6 >= 0 and d5 <= d6:
-        weights = ti.Vector([0.0, 0.0, 1.0], real)
-    elif vb <= 0 and d2 >= 0 and d6 <= 0:
-        along = d2 / (d2 - d6)
-        weights = ti.Vector([1 - along, 0.0, along], real)
-    elif va <= 0 and d4 - d3 >= 0 and d5 - d6 >= 0:
-        along = (d4 - d3) / ((d4 - d3) + (d5 - d6))
-        weights = ti.Vector([0.0, 1 - along, along], real)
-    else:
-        scale = 1 / (va + vb + vc)
-        weights = ti.Vector([1 - (vb + vc) * scale, vb * scale, vc * scale], real)
-    return weights
-
-
-@ti.func
-def closest_between_segments(a, b, c, d, real: ti.template()):
-    """Parameters (s, u) ∈ [0, 1]² of the closest points a + s·(b − a) and c + u·(d − c) of two
-    segments (Ericson §5.1.9; parallel segments take s = 0)."""
-    d1, d2, r = b - a, d - c, a - c
-    aa, ee, f = d1.dot(d1), d2.dot(d2), d2.dot(r)
-    s, u = real(0.0), real(0.0)
-    if aa > 1e-30 and ee > 1e-30:
-        cc, bb = d1.dot(r), d1.dot(d2)
-        denominator = aa * ee - bb * bb
-        if denominator > 1e-30 * aa * ee:
-            s = ti.min(ti.max((bb * f - cc * ee) / denominator, 0.0), 1.0)
-        u = (bb * s + f) / ee
-        if u < 0:
-            u = real(0.0)
-            s = ti.min(ti.max(-cc / aa, 0.0), 1.0)
-        elif u > 1:
-            u = real(1.0)
-            s = ti.min(ti.max((bb - cc) / aa, 0.0), 1.0)
-    elif ee > 1e-30:
-        u = ti.min(ti.max(f / ee, 0.0), 1.0)
-    elif aa > 1e-30:
-        s = ti.min(ti.max(-d1.dot(r) / aa, 0.0), 1.0)
-    return s, u
 
 
 @ti.data_oriented

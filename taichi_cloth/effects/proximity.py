@@ -1,0 +1,62 @@
+"""Closest points between cloth primitives, for self-collision (``self_collision.py``): a point
+and a triangle, two segments (C. Ericson, "Real-Time Collision Detection", Morgan Kaufmann 2005,
+§5.1.5 and §5.1.9)."""
+
+import taichi as ti
+
+
+@ti.func
+def closest_on_triangle(p, a, b, c, real: ti.template()):
+    """Barycentric weights (w_a, w_b, w_c) of the point of triangle (a, b, c) closest to p
+    (Ericson §5.1.5: the Voronoi regions of its vertices, edges and face)."""
+    ab, ac = b - a, c - a
+    d1, d2 = ab.dot(p - a), ac.dot(p - a)
+    d3, d4 = ab.dot(p - b), ac.dot(p - b)
+    d5, d6 = ab.dot(p - c), ac.dot(p - c)
+    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
+    weights = ti.Vector([1.0, 0.0, 0.0], real)
+    if d1 <= 0 and d2 <= 0:
+        weights = ti.Vector([1.0, 0.0, 0.0], real)
+    elif d3 >= 0 and d4 <= d3:
+        weights = ti.Vector([0.0, 1.0, 0.0], real)
+    elif vc <= 0 and d1 >= 0 and d3 <= 0:
+        along = d1 / (d1 - d3)
+        weights = ti.Vector([1 - along, along, 0.0], real)
+    elif d6 >= 0 and d5 <= d6:
+        weights = ti.Vector([0.0, 0.0, 1.0], real)
+    elif vb <= 0 and d2 >= 0 and d6 <= 0:
+        along = d2 / (d2 - d6)
+        weights = ti.Vector([1 - along, 0.0, along], real)
+    elif va <= 0 and d4 - d3 >= 0 and d5 - d6 >= 0:
+        along = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+        weights = ti.Vector([0.0, 1 - along, along], real)
+    else:
+        scale = 1 / (va + vb + vc)
+        weights = ti.Vector([1 - (vb + vc) * scale, vb * scale, vc * scale], real)
+    return weights
+
+
+@ti.func
+def closest_between_segments(a, b, c, d, real: ti.template()):
+    """Parameters (s, u) ∈ [0, 1]² of the closest points a + s·(b − a) and c + u·(d − c) of two
+    segments (Ericson §5.1.9; parallel segments take s = 0)."""
+    d1, d2, r = b - a, d - c, a - c
+    aa, ee, f = d1.dot(d1), d2.dot(d2), d2.dot(r)
+    s, u = real(0.0), real(0.0)
+    if aa > 1e-30 and ee > 1e-30:
+        cc, bb = d1.dot(r), d1.dot(d2)
+        denominator = aa * ee - bb * bb
+        if denominator > 1e-30 * aa * ee:
+            s = ti.min(ti.max((bb * f - cc * ee) / denominator, 0.0), 1.0)
+        u = (bb * s + f) / ee
+        if u < 0:
+            u = real(0.0)
+            s = ti.min(ti.max(-cc / aa, 0.0), 1.0)
+        elif u > 1:
+            u = real(1.0)
+            s = ti.min(ti.max((bb - cc) / aa, 0.0), 1.0)
+    elif ee > 1e-30:
+        u = ti.min(ti.max(f / ee, 0.0), 1.0)
+    elif aa > 1e-30:
+        s = ti.min(ti.max(-d1.dot(r) / aa, 0.0), 1.0)
+    return s, u
