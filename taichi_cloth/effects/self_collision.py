@@ -34,14 +34,8 @@ its triangles' and edges' shares through static incidence lists. The computation
 are the same function of the same numbers: they match to the bit, and a run is bit-reproducible
 on the CPU.
 
-Implicit integrator: each slot also keeps w²·(−m·k̂·n·nᵀ) and w² times the dashpot and friction
-block (``penalty_damping_block``); a particle's blocks are their gathered sum, the couplings
-between the particles of a pair left out (as for body contact's surface samples).
-
-Tunnelling: the force acts only within ``thickness``; parts that cross it in one step pass
-through each other. ``dt = "auto"`` keeps the repulsion's own frequency stable; the thickness must
-stay below half the shortest rest edge (else neighbours across an edge would repel at rest). The
-self-intersection metric (``physics.intersections``) reports every crossing that happened anyway.
+Implicit integrator: per-particle blocks of each pair (w²-weighted), the couplings between a
+pair's particles left out; tunnelling, the thickness bound and the measured cost: docs/physics.md.
 """
 
 from dataclasses import dataclass
@@ -105,7 +99,7 @@ class SelfCollision(Effect):
         self.corners = ti.Vector.field(3, ti.i32, self.triangle_count)
         self.ends = ti.Vector.field(2, ti.i32, self.edge_count)
         self.padding = PADDING * settings.thickness  # m: lists hold pairs within thickness + it
-        self.cell_size = ti.field(real, ())
+        self.longest_edge = ti.field(real, ())  # m, at the last build: the hash cell's base
         self.moved = ti.field(real, ())  # the farthest a particle went since the lists' build
         self.stale = ti.field(ti.i32, ())  # whether this evaluation rebuilds the lists
         self.overflow = ti.field(ti.i32, ())  # candidates dropped from full lists, ever
@@ -152,11 +146,11 @@ class SelfCollision(Effect):
         for i_p in range(particles):
             ti.atomic_max(self.moved[None], (x[i_p] - self.built_at[i_p]).norm())
         self.stale[None] = int(self.moved[None] > 0.5 * real(self.padding))
-        self.cell_size[None] = 0.0
+        self.longest_edge[None] = 0.0
         for item in range(self.item_count):
             if self.stale[None]:
                 self._place(x, item)
-        size = self.cell_size[None] + real(self.thickness + self.padding)
+        size = self.longest_edge[None] + real(self.thickness + self.padding)
         self.items.build(size, self.stale)
         for item in range(self.item_count):
             if self.stale[None]:
@@ -170,7 +164,7 @@ class SelfCollision(Effect):
     def _place(self, x, item):
         """Hashed item ``item`` at x: its point (a particle, a triangle's centroid, an edge's
         midpoint) and the radius around it that holds it; a particle's build position; the
-        longest edge into ``cell_size``."""
+        longest edge into ``longest_edge``."""
         particles, triangles = self.model.particle_count, self.triangle_count
         if item < particles:
             self.items.point[item] = x[item]
@@ -187,7 +181,7 @@ class SelfCollision(Effect):
             length = (x[ends[1]] - x[ends[0]]).norm()
             self.items.point[item] = 0.5 * (x[ends[0]] + x[ends[1]])
             self.item_radius[item] = 0.5 * length
-            ti.atomic_max(self.cell_size[None], length)
+            ti.atomic_max(self.longest_edge[None], length)
 
     @ti.func
     def _pairable(self, item, other) -> ti.i32:
@@ -234,19 +228,14 @@ class SelfCollision(Effect):
         particles, triangles = self.model.particle_count, self.triangle_count
         distance = self.model.real(0.0)
         if item >= particles + triangles:
-            first = self.ends[item - particles - triangles]
-            second = self.ends[other - particles - triangles]
-            a, b, c, d = x[first[0]], x[first[1]], x[second[0]], x[second[1]]
-            s, u = closest_between_segments(a, b, c, d, self.model.real)
-            distance = ((a + s * (b - a)) - (c + u * (d - c))).norm()
+            _, _, offset = self._edge_edge_offset(x, self.ends[item - particles - triangles],
+                                                  self.ends[other - particles - triangles])
+            distance = offset.norm()
         else:
             i_p, i_t = item, other - particles
             if item >= particles:
                 i_p, i_t = other, item - particles
-            corners = self.corners[i_t]
-            a, b, c = x[corners[0]], x[corners[1]], x[corners[2]]
-            weights = closest_on_triangle(x[i_p], a, b, c, self.model.real)
-            distance = (x[i_p] - (weights[0] * a + weights[1] * b + weights[2] * c)).norm()
+            distance = self._vertex_triangle_offset(x, i_p, self.corners[i_t])[1].norm()
         return distance
 
     @ti.func
@@ -352,12 +341,26 @@ class SelfCollision(Effect):
         return active, force, stiffness, damping
 
     @ti.func
+    def _vertex_triangle_offset(self, x, i_p, corners):
+        """(barycentric weights of the point of the triangle of ``corners`` closest to particle
+        i_p, the particle minus that point [m])."""
+        a, b, c = x[corners[0]], x[corners[1]], x[corners[2]]
+        weights = closest_on_triangle(x[i_p], a, b, c, self.model.real)
+        return weights, x[i_p] - (weights[0] * a + weights[1] * b + weights[2] * c)
+
+    @ti.func
+    def _edge_edge_offset(self, x, first, second):
+        """(s, u, the first edge's closest point minus the second's [m]) of two edges given by
+        their particles."""
+        a, b, c, d = x[first[0]], x[first[1]], x[second[0]], x[second[1]]
+        s, u = closest_between_segments(a, b, c, d, self.model.real)
+        return s, u, (a + s * (b - a)) - (c + u * (d - c))
+
+    @ti.func
     def _vertex_triangle(self, x, v, i_p, corners):
         """Vertex i_p against the triangle of ``corners``: (active, barycentric weights of the
         closest point, force on the vertex, blocks)."""
-        a, b, c = x[corners[0]], x[corners[1]], x[corners[2]]
-        weights = closest_on_triangle(x[i_p], a, b, c, self.model.real)
-        offset = x[i_p] - (weights[0] * a + weights[1] * b + weights[2] * c)
+        weights, offset = self._vertex_triangle_offset(x, i_p, corners)
         closest_velocity = weights[0] * v[corners[0]] + weights[1] * v[corners[1]] \
             + weights[2] * v[corners[2]]
         active, force, stiffness, damping = self._pair(
@@ -368,9 +371,7 @@ class SelfCollision(Effect):
     def _edge_edge(self, x, v, first, second):
         """Edge ``first`` (its two particles) against edge ``second``: (active, s, u, force on
         the first edge's closest point, blocks), with the four particles' mean mass."""
-        a, b, c, d = x[first[0]], x[first[1]], x[second[0]], x[second[1]]
-        s, u = closest_between_segments(a, b, c, d, self.model.real)
-        offset = (a + s * (b - a)) - (c + u * (d - c))
+        s, u, offset = self._edge_edge_offset(x, first, second)
         velocity_first = (1 - s) * v[first[0]] + s * v[first[1]]
         velocity_second = (1 - u) * v[second[0]] + u * v[second[1]]
         mass = ti.static(self.model.particle_mass)

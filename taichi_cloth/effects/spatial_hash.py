@@ -14,6 +14,19 @@ import taichi as ti
 BUCKETS_PER_POINT = 2
 
 
+@ti.func
+def hash_cell(cell, bucket_count) -> ti.i32:
+    """The bucket in [0, bucket_count) of a grid cell (three integer indices): the spatial hash
+    of Teschner et al. (2003, "Optimized spatial hashing for collision detection of deformable
+    objects"), a sum of the indices times three large primes, in 64-bit integers."""
+    code = ti.cast(cell[0], ti.i64) * 73856093 + ti.cast(cell[1], ti.i64) * 19349663 \
+        + ti.cast(cell[2], ti.i64) * 83492791
+    bucket = code % bucket_count
+    if bucket < 0:
+        bucket += bucket_count
+    return ti.cast(bucket, ti.i32)
+
+
 @ti.data_oriented
 class SpatialHash:
     """``count`` points [m] (``point``) filed by grid cell (module docstring)."""
@@ -30,13 +43,8 @@ class SpatialHash:
 
     @ti.func
     def bucket(self, cell) -> ti.i32:
-        """The bucket of a grid cell (i32 indices), in [0, bucket_count)."""
-        code = ti.cast(cell[0], ti.i64) * 73856093 + ti.cast(cell[1], ti.i64) * 19349663 \
-            + ti.cast(cell[2], ti.i64) * 83492791
-        bucket = code % self.bucket_count
-        if bucket < 0:
-            bucket += self.bucket_count
-        return ti.cast(bucket, ti.i32)
+        """The bucket of a grid cell (``hash_cell``)."""
+        return hash_cell(cell, self.bucket_count)
 
     @ti.func
     def cell_of(self, position, cell_size):

@@ -19,6 +19,8 @@ lexicographic order: every pair of cells once. The count is an integer sum, the 
 import numpy as np
 import taichi as ti
 
+from taichi_cloth.effects.spatial_hash import hash_cell
+
 HASH_LOAD = 2  # hash buckets per triangle
 PLANE_TOLERANCE = 1e-12  # m: a vertex this close to the other triangle's plane lies on it
 FOUND_CAPACITY = 1024  # intersecting pairs a count also lists
@@ -148,16 +150,6 @@ cell3 = ti.types.vector(3, ti.i64)
 pair2 = ti.types.vector(2, ti.i32)
 
 
-@ti.func
-def hash_bucket(cell, bucket_count: ti.i32) -> ti.i32:
-    """The hash bucket of a grid cell (three i64 indices)."""
-    code = cell[0] * 73856093 + cell[1] * 19349663 + cell[2] * 83492791
-    bucket = code % bucket_count
-    if bucket < 0:
-        bucket += bucket_count
-    return ti.cast(bucket, ti.i32)
-
-
 @ti.kernel
 def count_intersecting_pairs(x: ti.types.ndarray(dtype=vec3, ndim=1),
                              triangles: ti.types.ndarray(dtype=ivec3, ndim=1),
@@ -187,13 +179,13 @@ def count_intersecting_pairs(x: ti.types.ndarray(dtype=vec3, ndim=1),
         ti.atomic_max(cell_size[0], (high[t] - low[t]).max())
     for t in range(triangles.shape[0]):
         cell[t] = ti.cast(ti.floor(low[t] / ti.max(cell_size[0], 1e-12)), ti.i64)
-        ti.atomic_add(bucket_fill[hash_bucket(cell[t], bucket_count)], 1)
+        ti.atomic_add(bucket_fill[hash_cell(cell[t], bucket_count)], 1)
     ti.loop_config(serialize=True)
     for b in range(bucket_count):
         bucket_start[b + 1] = bucket_start[b] + bucket_fill[b]
         bucket_fill[b] = bucket_start[b]
     for t in range(triangles.shape[0]):
-        filed[ti.atomic_add(bucket_fill[hash_bucket(cell[t], bucket_count)], 1)] = t
+        filed[ti.atomic_add(bucket_fill[hash_cell(cell[t], bucket_count)], 1)] = t
     for a in range(triangles.shape[0]):
         corner_a = triangles[a]
         for offset in ti.grouped(ti.ndrange((-1, 2), (-1, 2), (-1, 2))):
@@ -201,7 +193,7 @@ def count_intersecting_pairs(x: ti.types.ndarray(dtype=vec3, ndim=1),
             if order < 0:
                 continue
             near = cell[a] + ti.cast(offset, ti.i64)
-            bucket = hash_bucket(near, bucket_count)
+            bucket = hash_cell(near, bucket_count)
             for k in range(bucket_start[bucket], bucket_start[bucket + 1]):
                 b = filed[k]
                 if (order > 0 or b > a) and (cell[b] == near).all() \
