@@ -235,3 +235,34 @@ def test_other_amplitudes_keep_knees_bent(amplitude):
 def test_bad_arguments_raise(arguments, message):
     with pytest.raises(ValueError, match=message):
         Body(**arguments)
+
+
+@pytest.mark.parametrize("t", [0.2, 0.5, 1.3, 2.2, 2.5, 4.0, 6.1])
+def test_twirl_velocities_match_central_differences(t):
+    body, step = Body(motion="twirl"), 1e-6
+    before, now, after = body.pose(t - step), body.pose(t), body.pose(t + step)
+    for position, velocity in (("capsule_a", "capsule_velocity_a"), ("pelvis_position", "pelvis_velocity")):
+        difference = (getattr(after, position) - getattr(before, position)) / (2.0 * step)
+        np.testing.assert_allclose(getattr(now, velocity), difference, atol=1e-6)
+    yaw_rate = (after.pelvis_rotation - before.pelvis_rotation) / (2.0 * step) @ now.pelvis_rotation.T
+    np.testing.assert_allclose(now.pelvis_angular_velocity, [0.0, yaw_rate[0, 2], 0.0], atol=1e-6)
+
+
+def test_twirl_spins_on_the_spot_then_stands_and_repeats():
+    """At 90 bpm one loop (8 beats, 5.33 s) turns the rest pose by two whole turns about the
+    vertical through the feet: one turn a second at full speed (beats 1-3), still from beat 4 to
+    8, the same pose a loop later, and every point keeps its height and distance to the axis."""
+    body, rest = Body(motion="twirl"), Body(motion="still").pose(0.0)
+    beat = 60.0 / body.tempo
+    full_speed = body.pose(2.0 * beat)
+    assert full_speed.pelvis_angular_velocity[1] == pytest.approx(2.0 * np.pi)
+    for t in (4.0 * beat, 6.5 * beat, body.loop_period):
+        pose = body.pose(t)
+        np.testing.assert_allclose(pose.capsule_a, rest.capsule_a, atol=1e-9)
+        assert np.abs(pose.capsule_velocity_b).max() < 1e-9
+    quarter = body.pose(1.5 * beat)  # mid-spin: the rest pose turned about the vertical
+    np.testing.assert_allclose(np.hypot(quarter.capsule_b[:, 0], quarter.capsule_b[:, 2]),
+                               np.hypot(rest.capsule_b[:, 0], rest.capsule_b[:, 2]), atol=1e-12)
+    np.testing.assert_allclose(quarter.capsule_b[:, 1], rest.capsule_b[:, 1], atol=1e-12)
+    later = body.pose(1.5 * beat + body.loop_period)
+    np.testing.assert_allclose(later.capsule_b, quarter.capsule_b, atol=1e-9)

@@ -237,3 +237,47 @@ def test_skirt_shorter_than_its_flare_is_refused():
     scene = load_scene("skirt", ("cloth.resolution=[8, 4]", "cloth.length=0.2"))
     with pytest.raises(InputError, match="cloth.length"):
         build_garment(scene.cloth, scene.material, source=scene.path)
+
+
+@pytest.mark.parametrize("circle", [1.0, 0.5])
+def test_circle_skirt_is_the_cone_its_annulus_pattern_sews_into(circle):
+    """A circle skirt cut from the fraction ``circle`` of an annulus of inner radius
+    waist_radius/circle: worn, its waist ring has the waist's radius, every column runs the
+    skirt's length down the fabric, and the hem ring's radius is waist_radius + circle·length
+    (a full circle lies flat at the waist, a half circle is a cone of half-angle 30°)."""
+    waist, length = 0.17, 0.45
+    scene, garment = garment_of("skirt", "cloth.shape='circle-skirt'", f"cloth.circle={circle}",
+                                f"cloth.waist_radius={waist}", f"cloth.length={length}",
+                                "cloth.resolution=[24, 10]")
+    grid = garment.positions.reshape(10, 24, 3)
+    radius = np.hypot(grid[..., 0], grid[..., 2])
+    np.testing.assert_allclose(radius[0], waist, rtol=1e-12)
+    np.testing.assert_allclose(radius[-1], waist + circle * length, rtol=1e-12)
+    slant = np.linalg.norm(np.diff(grid, axis=0), axis=2).sum(axis=0)
+    np.testing.assert_allclose(slant, length, rtol=1e-12)
+    drop = grid[0, :, 1] - grid[-1, :, 1]
+    np.testing.assert_allclose(drop, length * np.sqrt(1 - circle ** 2), atol=1e-12)
+
+
+@pytest.mark.parametrize("orientation, across", [("vertical", 2), ("horizontal", 1)])
+def test_sheet_ripple_bends_the_start_without_stretching_it(orientation, across):
+    """``cloth.ripple = [a, k]`` starts a sheet on the wave a·sin(π·k·u/L) across its plane
+    (u along the fabric from the top row), bent without stretching: every spring at its rest
+    length; the rest shape stays flat. A wave steeper than 45° is refused."""
+    settings = ("cloth.resolution=[6, 41]", "cloth.size=[0.5, 1.0]",
+                f"cloth.orientation='{orientation}'")
+    scene, garment = garment_of("sheet", *settings, "cloth.ripple=[0.02, 3.0]")
+    flat = garment_of("sheet", *settings)[1]
+    np.testing.assert_array_equal(garment.positions, flat.positions)
+    assert flat.start_offset is None
+    start = garment.start_positions.reshape(41, 6, 3)
+    wave = 0.02 * np.sin(np.pi * 3.0 * np.linspace(0, 1, 41))
+    np.testing.assert_allclose(start[..., across] - flat.positions.reshape(41, 6, 3)[..., across],
+                               np.repeat(wave[:, None], 6, axis=1), atol=1e-15)
+    for pairs in garment.springs.values():
+        rest = np.linalg.norm(np.diff(garment.positions[pairs], axis=1), axis=2)
+        now = np.linalg.norm(np.diff(garment.start_positions[pairs], axis=1), axis=2)
+        # the chord of a bent spring is shorter than its arc by ~(h·κ)²/24
+        np.testing.assert_allclose(now, rest, rtol=2e-4)
+    with pytest.raises(InputError, match="cloth.ripple"):
+        garment_of("sheet", *settings, "cloth.ripple=[0.2, 3.0]")

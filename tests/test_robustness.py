@@ -90,10 +90,10 @@ def interrupt_at(frame_to_stop: int):
     ``frame_to_stop``, after the frames before it were whole."""
     measure = Simulation.measure
 
-    def measure_or_stop(self, frame, x, v):
+    def measure_or_stop(self, frame, x, v, *counted):
         if frame == frame_to_stop:
             raise KeyboardInterrupt
-        return measure(self, frame, x, v)
+        return measure(self, frame, x, v, *counted)
 
     return measure_or_stop
 

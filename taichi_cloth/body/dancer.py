@@ -1,4 +1,4 @@
-"""Kinematic dancer body: a capsule skeleton performing a procedural hula.
+"""Kinematic dancer body: a capsule skeleton performing a procedural hula or twirl.
 
 The body is a set of bones, each modelled for collision as capsules (a
 segment a-b plus a radius r), after Sakoma et al., "Attempt of Cloth
@@ -30,6 +30,9 @@ finite sum of sinusoids of the beat phase, so the dance is C-infinity and
 repeats exactly every ``LOOP_BEATS`` beats; a quintic smoothstep envelope
 eases it in from the rest pose.
 
+Motion ``"twirl"``: the rest pose turned about the vertical through her
+feet by the spin-and-stop angle of ``body.twirl`` (for a circle skirt).
+
 Velocities are exact derivatives computed by the complex step: for a
 function f analytic in t, f'(t) = Im f(t + i h) / h + O(h^2) with no
 subtractive cancellation, so h = 1e-20 s gives them to machine precision.
@@ -44,12 +47,13 @@ from types import MappingProxyType
 
 import numpy as np
 
+from taichi_cloth.body.twirl import twirl_turns
 from taichi_cloth.body.hula import (BACK_COUNTER, COMPLEX_STEP, FOOT_LIFT, HIP_CIRCLE_BEATS,
                                    HIP_CIRCLE_RADIUS, HIP_SWAY, KAHOLO_HARMONICS, LOOP_BEATS,
                                    PELVIS_DIP, PELVIS_PITCH, PELVIS_ROLL, PELVIS_SINK, PELVIS_YAW,
                                    STEP_LENGTH, kaholo_series, smoothstep)
 
-MOTION_NAMES = ("still", "hula")
+MOTION_NAMES = ("still", "hula", "twirl")
 CAPSULE_LAYOUT_NAMES = ("coarse", "split")
 
 # --- rest skeleton, metres at scale 1 ---------------------------------------
@@ -188,10 +192,12 @@ class Body:
 
     Parameters
     ----------
-    motion : ``"still"`` (rest pose forever) or ``"hula"`` (kaholo steps with hip sway and
-        'ami hip circles).
+    motion : ``"still"`` (rest pose forever), ``"hula"`` (kaholo steps with hip sway and
+        'ami hip circles) or ``"twirl"`` (the rest pose spinning on the spot and stopping,
+        ``body.twirl``).
     tempo : beats per minute of the dance (> 0).
-    amplitude : dimensionless size of the hip motion (>= 0); 1 is natural: pelvis sway 6 cm,
+    amplitude : dimensionless size of the motion (>= 0); twirl: 2 turns per loop at 1; hula: 1 is
+        natural: pelvis sway 6 cm,
         hip circle radius 3.5 cm, hip tilt 5 deg, yaw 4 deg, pitch 3 deg; the pelvis sinks
         (1.5 cm + 1 cm dips) as amplitude^2.  The kaholo steps (12 cm, feet lifted 2 cm) do
         not scale with it.
@@ -355,4 +361,9 @@ class Body:
         chest_local_b = np.array([_NECK_TOP_LOCAL, _HEAD_SEGMENT_LOCAL[1], *elbow, *wrist])
         display_a = np.concatenate([neck_base + chest_local_a @ back_rotation.T, ankle])
         display_b = np.concatenate([neck_base + chest_local_b @ back_rotation.T, ankle + _FOOT_WORLD])
+        if self.motion == "twirl":
+            spin = _rotation_y(2.0 * np.pi * twirl_turns(beat, self.amplitude))
+            capsule_a, capsule_b = capsule_a @ spin.T, capsule_b @ spin.T
+            display_a, display_b = display_a @ spin.T, display_b @ spin.T
+            pelvis_position, pelvis_rotation = spin @ pelvis_position, spin @ pelvis_rotation
         return capsule_a, capsule_b, display_a, display_b, pelvis_position, pelvis_rotation

@@ -52,6 +52,12 @@ class Garment:
     warp: np.ndarray | None = None
     hinges: np.ndarray = field(default_factory=lambda: np.zeros((0, 4), np.int32))
     hinge_rigidity: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    start_offset: np.ndarray | None = None
+
+    @property
+    def start_positions(self) -> np.ndarray:
+        """The positions (N, 3) [m] the run starts from."""
+        return self.positions if self.start_offset is None else self.positions + self.start_offset
 
     @property
     def particle_count(self) -> int:
@@ -78,11 +84,44 @@ def sheet_positions(cloth: ClothConfig) -> np.ndarray:
     return np.stack([xx, np.full_like(xx, cloth.height), aa - depth / 2], axis=-1).reshape(-1, 3)
 
 
+def sheet_ripple(cloth: ClothConfig, source: str = "") -> np.ndarray | None:
+    """The start offset (N, 3) [m] of a sheet with ``cloth.ripple`` = [a, k]: the sheet bent,
+    without stretching, into the wave w(u) = a·sin(π·k·u/L) across its plane (z for a vertical
+    sheet, y for a horizontal one) down its length L (u from the top row): a row at distance u
+    along the fabric moves to w(u) across and ∫₀ᵘ √(1 − w′²) along, so every spring keeps its
+    rest length to the quadrature's accuracy. None without a ripple (or for other shapes); a
+    wave steeper than 45° (a·π·k/L > 1) is an InputError."""
+    amplitude, half_waves = cloth.ripple
+    if cloth.shape != "sheet" or amplitude == 0.0:
+        return None
+    columns, rows = cloth.resolution
+    length = cloth.size[1]
+    wavenumber = np.pi * half_waves / length
+    if amplitude * wavenumber > 1.0:
+        raise InputError(f"{source}: cloth.ripple: a wave of {amplitude:g} m and {half_waves:g} half-waves "
+                         f"rises steeper than 45° on a sheet {length:g} m long")
+    fine = np.linspace(0.0, length, 64 * rows)
+    slope = amplitude * wavenumber * np.cos(wavenumber * fine)
+    run = np.concatenate([[0.0], np.cumsum(0.5 * (np.sqrt(1 - slope[1:] ** 2)
+                                                  + np.sqrt(1 - slope[:-1] ** 2))
+                                           * np.diff(fine))])
+    along = np.linspace(0.0, length, rows)
+    shortening = np.interp(along, fine, run) - along
+    across = amplitude * np.sin(wavenumber * along)
+    offset = np.zeros((rows, columns, 3))
+    if cloth.orientation == "vertical":  # rows run down −y, the plane's normal is z
+        offset[:, :, 1], offset[:, :, 2] = -shortening[:, None], across[:, None]
+    else:  # rows run along +z, the normal is y
+        offset[:, :, 2], offset[:, :, 1] = shortening[:, None], across[:, None]
+    return offset.reshape(-1, 3)
+
+
 def skirt_positions(cloth: ClothConfig, waist_height: float) -> np.ndarray:
-    """A cone: radius from waist to hem; ``length`` is measured along the fabric."""
+    """A cone: radius from waist to hem; ``length`` is measured along the fabric (a full
+    circle skirt, flare = length, is a flat annulus)."""
     around, down = cloth.resolution
-    flare = cloth.hem_radius - cloth.waist_radius
-    drop = np.sqrt(cloth.length ** 2 - flare ** 2)
+    flare = cloth.skirt_flare
+    drop = cloth.length * np.sqrt(1.0 - (flare / cloth.length) ** 2)
     angle = 2 * np.pi * np.arange(around) / around
     fraction = np.linspace(0.0, 1.0, down)
     radius = cloth.waist_radius + flare * fraction
@@ -95,18 +134,26 @@ def skirt_positions(cloth: ClothConfig, waist_height: float) -> np.ndarray:
 
 def settling_ripple(garment: "Garment", folds: int = 8, amplitude: float = 0.01) -> np.ndarray:
     """A displacement (N, 3) [m] that lets a wrap-around garment (a skirt) buckle into
-    ``folds`` folds when it settles: radial about the vertical axis, amplitude·s²·sin(folds·θ)
-    with s the fraction of the way from the first row (the waist, s = 0) to the last (the hem,
-    s = 1); zero for other garments. A cone cut from flat fabric is an equilibrium, unstable but
-    exact: without a push it would stand as a cone."""
+    ``folds`` folds when it settles: amplitude·s²·sin(folds·θ) along the cone's outward normal
+    (radial on a straight skirt, vertical on a flat full circle skirt: the normal of the slant
+    (Δr, Δy) from waist to hem in the radial–vertical plane is (−Δy, Δr)/|(Δr, Δy)|), with s the
+    fraction of the way from the first row (the waist, s = 0) to the last (the hem, s = 1); zero
+    for other garments. A cone cut from flat fabric is an equilibrium, unstable but exact:
+    without a push it would stand as a cone."""
     if not garment.periodic:
         return np.zeros_like(garment.positions)
     columns, rows = garment.columns, garment.rows
     angle = 2 * np.pi * np.arange(columns) / columns
     fraction = np.linspace(0.0, 1.0, rows)
-    radial = amplitude * fraction[:, None] ** 2 * np.sin(folds * angle)[None, :]
+    grid = garment.positions.reshape(rows, columns, 3)
+    slant = grid[-1] - grid[0]
     outward = np.stack([np.cos(angle), np.zeros(columns), np.sin(angle)], axis=1)
-    return (radial[:, :, None] * outward[None, :, :]).reshape(-1, 3)
+    radial_run = np.einsum("ck,ck->c", slant, outward)
+    drop = slant[:, 1]
+    normal = -drop[:, None] * outward + radial_run[:, None] * np.array([0.0, 1.0, 0.0])
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    size = amplitude * fraction[:, None] ** 2 * np.sin(folds * angle)[None, :]
+    return (size[:, :, None] * normal[None, :, :]).reshape(-1, 3)
 
 
 def disc_positions(cloth: ClothConfig) -> np.ndarray:
@@ -203,14 +250,14 @@ def build_garment(cloth: ClothConfig, material: Material, waist_height: float | 
     """Build the garment a scene's ``[cloth]`` describes. ``waist_height`` places a skirt (the
     body's waist when there is one, else ``cloth.waist_height``)."""
     columns, rows = cloth.resolution
-    periodic = cloth.shape in ("skirt", "disc")
+    periodic = cloth.is_skirt or cloth.shape == "disc"
     if periodic and columns < 5:
         raise InputError(f"{source}: cloth.resolution: a {cloth.shape} needs at least 5 "
                          f"particles around, got {columns}")
-    if cloth.shape == "skirt":
-        if abs(cloth.hem_radius - cloth.waist_radius) >= cloth.length:
-            raise InputError(f"{source}: cloth.length: must exceed |hem_radius − waist_radius| "
-                             f"= {abs(cloth.hem_radius - cloth.waist_radius):g} m")
+    if cloth.is_skirt:
+        if abs(cloth.skirt_flare) > cloth.length:
+            raise InputError(f"{source}: cloth.length: must be at least |hem_radius − "
+                             f"waist_radius| = {abs(cloth.hem_radius - cloth.waist_radius):g} m")
         positions = skirt_positions(cloth, cloth.waist_height if waist_height is None
                                     else waist_height)
     elif cloth.shape == "disc":
@@ -246,6 +293,7 @@ def build_garment(cloth: ClothConfig, material: Material, waist_height: float | 
         hinges=hinges,
         hinge_rigidity=hinge_rigidity(positions, warp, hinges, material.bend_stiffness,
                                       material.bend_weft),
+        start_offset=sheet_ripple(cloth, source),
     )
 
 
@@ -256,5 +304,5 @@ def warp_directions(cloth: ClothConfig, positions: np.ndarray) -> np.ndarray:
     columns, rows = cloth.resolution
     if cloth.shape == "disc":
         return np.tile([np.cos(bias), 0.0, np.sin(bias)], (len(positions), 1))
-    across, down = grid_tangents(positions, columns, rows, cloth.shape == "skirt")
+    across, down = grid_tangents(positions, columns, rows, cloth.is_skirt)
     return np.cos(bias) * down + np.sin(bias) * across

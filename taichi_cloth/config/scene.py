@@ -94,9 +94,11 @@ class MaterialOverrides:
 
 @dataclass(frozen=True)
 class ClothConfig:
-    shape: str = setting("sheet", "str", choices=("skirt", "sheet", "disc"),
-                         doc="disc: a flat circular specimen (Cusick drape), rings from "
-                             "waist_radius to hem_radius at height")
+    shape: str = setting("sheet", "str", choices=("skirt", "circle-skirt", "sheet", "disc"),
+                         doc="skirt: a cone from waist_radius to hem_radius; circle-skirt: "
+                             "cut from a fraction `circle` of an annulus; disc: a flat "
+                             "circular specimen (Cusick drape), rings from waist_radius to "
+                             "hem_radius at height")
     resolution: tuple = setting([24, 24], "int_list", low=2, high=4096, length=2,
                                 doc="[around, down] for a skirt, [x, z] for a sheet")
     material: MaterialOverrides = setting(MaterialOverrides(), "table", shorthand="preset",
@@ -114,6 +116,9 @@ class ClothConfig:
                                "bending.py); springs: the seed's skip-one springs; none")
     bias: float = setting(0.0, "float", low=-90.0, high=90.0,
                           doc="degrees the warp is turned from the garment's length (45: bias cut)")
+    circle: float = setting(1.0, "float", low=0.0, low_inclusive=False, high=1.0,
+                            doc="circle-skirt: the fraction of a full circle its pattern spans "
+                                "(1 full, 0.5 half); hem radius = waist_radius + circle·length")
     waist_radius: float = setting(0.17, "float", low=0.0, low_inclusive=False, doc="skirt, m")
     hem_radius: float = setting(0.40, "float", low=0.0, low_inclusive=False, doc="skirt, m")
     length: float = setting(0.55, "float", low=0.0, low_inclusive=False, doc="skirt, m")
@@ -123,14 +128,34 @@ class ClothConfig:
     height: float = setting(1.0, "float", doc="sheet: y of its top edge (vertical) or plane, m")
     orientation: str = setting("vertical", "str", choices=("vertical", "horizontal"),
                                doc="sheet hangs in the x-y plane or lies in the x-z plane")
+    ripple: tuple = setting([0.0, 1.0], "float_list", low=0.0, length=2,
+                            doc="sheet: [amplitude m, half-waves] of a wave across its plane, "
+                                "down its length, in the start shape (the rest shape stays "
+                                "flat): lets a sheet dropped on its edge buckle")
+
+    @property
+    def is_skirt(self) -> bool:
+        """A wrap-around skirt, worn at the waist (``skirt`` or ``circle-skirt``)."""
+        return self.shape in ("skirt", "circle-skirt")
+
+    @property
+    def skirt_flare(self) -> float:
+        """How much wider [m] a skirt's hem circle is than its waist: hem_radius −
+        waist_radius, or for a circle skirt circle·length (a pattern spanning the fraction
+        ``circle`` of an annulus of inner radius waist_radius/circle, sewn into a cone; a full
+        circle lies flat)."""
+        if self.shape == "circle-skirt":
+            return self.circle * self.length
+        return self.hem_radius - self.waist_radius
 
 
 @dataclass(frozen=True)
 class BodyConfig:
-    motion: str = setting("still", "str", choices=("hula", "still"))
+    motion: str = setting("still", "str", choices=("hula", "twirl", "still"),
+                          doc="twirl: spins on the spot and stops (body/twirl.py)")
     tempo: float = setting(90.0, "float", low=0.0, low_inclusive=False, high=400.0,
                            doc="beats per minute")
-    amplitude: float = setting(1.0, "float", low=0.0, high=3.0, doc="scale of sway and circles")
+    amplitude: float = setting(1.0, "float", low=0.0, high=3.0, doc="scale of sway and circles; twirl: turns")
     capsules: str = setting("split", "str", choices=("split", "coarse", "bar", "ball"),
                             doc="paper Fig. 4, Fig. 3, or one static bar or ball (draping)")
     scale: float = setting(1.0, "float", low=0.1, high=10.0, doc="body size relative to 1.6 m")
@@ -322,14 +347,15 @@ def load_scene(name_or_path: str, overrides: tuple[str, ...] = ()) -> Scene:
                                          "cloth.bending = \"springs\"")
     cloth = build_table(ctx, ClothConfig, raw.get("cloth", {}), "cloth")
     body = build_table(ctx, BodyConfig, raw["body"], "body") if "body" in raw else None
-    if cloth.pin == "waist" and cloth.shape != "skirt":
-        raise ctx.error("cloth.pin", "pin = \"waist\" needs shape = \"skirt\"")
+    if cloth.pin == "waist" and not cloth.is_skirt:
+        raise ctx.error("cloth.pin", "pin = \"waist\" needs shape = \"skirt\" or "
+                                     "\"circle-skirt\"")
     if cloth.pin == "clamp" and cloth.shape != "disc":
         raise ctx.error("cloth.pin", "pin = \"clamp\" needs shape = \"disc\"")
     if cloth.shape == "disc" and cloth.pin not in ("clamp", "none"):
         raise ctx.error("cloth.pin", f"a disc is pinned at \"clamp\" or \"none\", got "
                                      f"{cloth.pin!r}")
-    if cloth.shape == "skirt" and cloth.pin not in ("waist", "none"):
+    if cloth.is_skirt and cloth.pin not in ("waist", "none"):
         raise ctx.error("cloth.pin", f"a skirt is pinned at \"waist\" or \"none\", got "
                                      f"{cloth.pin!r}")
     if not cloth.springs:

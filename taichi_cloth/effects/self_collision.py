@@ -61,8 +61,9 @@ CONTACTS_PER_PARTICLE = 4  # the stiffness bound for dt = "auto": a vertex, corn
 class SelfCollisionSettings:
     thickness: float = setting(0.004, "float", low=0.0, low_inclusive=False,
                                doc="distance the cloth keeps from itself, m")
-    stiffness: float = setting(1e5, "float", low=0.0, low_inclusive=False,
-                               doc="penalty stiffness per unit particle mass, 1/s²")
+    stiffness: float = setting(1e6, "float", low=0.0, low_inclusive=False,
+                               doc="penalty stiffness per unit particle mass, 1/s²: layers "
+                                   "meeting faster than thickness·√stiffness pass through")
     damping: float = setting(0.5, "float", low=0.0, doc="normal damping ratio ζ")
     friction: float = setting(0.3, "float", low=0.0, doc="Coulomb coefficient μ")
 

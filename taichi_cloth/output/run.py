@@ -118,6 +118,7 @@ def run_in_folder(scene: Scene, frame_count: int, folder: OwnedFolder, quiet: bo
     """``run_scene`` in its locked folder."""
     from taichi_cloth.physics.metrics import FrameMetrics, RunRecord
     from taichi_cloth.physics.simulation import Simulation
+    from taichi_cloth.physics.settling import settle
     directory = folder.directory
     simulation = Simulation.from_scene(scene)
     check_time(simulation, frame_count, limits)
@@ -141,7 +142,7 @@ def run_in_folder(scene: Scene, frame_count: int, folder: OwnedFolder, quiet: bo
             raise InputError(f"--resume: frames 0–{first_frame - 1} are done already; ask for "
                              f"more with --frames")
     else:
-        simulation.settle(record)
+        settle(simulation, record)
     finished = {}  # the last whole frame: its index and host copies of its state
     with contextlib.ExitStack() as stack:
         renderer = append_video = None

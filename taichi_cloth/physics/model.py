@@ -121,13 +121,13 @@ class Model:
         return np.ascontiguousarray(array, dtype=self.numpy_real)
 
     def state(self) -> State:
-        """A fresh state at the rest positions, at rest."""
+        """A fresh state at the start positions, at rest."""
         return self.states(1)[0]
 
     def states(self, count: int) -> list[State]:
         """``count`` fresh states, allocated together (one SNode tree) before they are filled."""
         states = [State(self.particle_count, self.real) for _ in range(count)]
         for state in states:
-            state.x.from_numpy(self._real(self.garment.positions))
+            state.x.from_numpy(self._real(self.garment.start_positions))
             state.v.fill(0.0)
         return states

@@ -19,14 +19,13 @@ frame is written.
 """
 
 import dataclasses
-import math
 import time
 from dataclasses import dataclass
 
 import numpy as np
 import taichi as ti
 
-from taichi_cloth.cloth.garment import build_garment, settling_ripple
+from taichi_cloth.cloth.garment import build_garment
 from taichi_cloth.config.scene import Scene, load_scene
 from taichi_cloth.effects import EffectContext, build_effects, model_options
 from taichi_cloth.errors import UnstableError
@@ -43,7 +42,7 @@ from taichi_cloth.physics.rig import BodyRig
 from taichi_cloth.physics.timestep import TimeStep, choose_time_step
 from taichi_cloth.runtime import start_taichi
 
-SETTLE_CHECK_INTERVAL = 1.0 / 240.0  # s of settling between two checks of the kinetic energy
+TUNNELLING_HALVINGS = 2  # a frame through which the cloth crossed itself is redone at dt/2, dt/4
 
 
 @dataclass(frozen=True)
@@ -73,7 +72,9 @@ class Simulation:
         self.surface_edges = self.garment.edges
         self.intersections = IntersectionCounter(self.garment.triangles,
                                                  self.garment.particle_count)
-        self.settle_report = None  # what ``settle`` did (a resumed run copies it back)
+        self.guards_crossings = "self_collision" in scene.effects  # ``guarded_frame``
+        self._crossings = None  # crossing pairs in the current state, when counted
+        self.settle_report = None  # what ``settling.settle`` did (a resumed run copies it back)
         self.model = Model(self.garment, scene.simulation.precision,
                            **model_options(scene.effects))
         if self.body_rig is not None:
@@ -153,6 +154,11 @@ class Simulation:
         self.state_in.v.from_numpy(snapshot.velocities.astype(real))
         self.set_time_step(snapshot.dt, snapshot.substeps_per_frame)
         self.integrator.restore_memory(snapshot.integrator_memory)
+        self.forget_crossings()
+
+    def forget_crossings(self) -> None:
+        """The positions were set from outside: the crossing pairs are counted afresh."""
+        self._crossings = None
 
     def state_problem(self, x: np.ndarray, v: np.ndarray) -> str | None:
         """Why the state is not usable (non-finite, over-strained or too fast), or None."""
@@ -174,12 +180,14 @@ class Simulation:
         free = ~self.garment.pinned
         return float(np.mean(np.linalg.norm(v[free], axis=1))) if free.any() else 0.0
 
-    def measure(self, frame: int, x: np.ndarray, v: np.ndarray) -> FrameMetrics:
+    def measure(self, frame: int, x: np.ndarray, v: np.ndarray, crossings: int | None = None,
+                halvings: int = 0) -> FrameMetrics:
         """Metrics of a (checked) state x [m], v [m/s] at ``frame``: energies (kinetic;
         potential = the effects' + the springs'), strain, penetration of the whole surface
         (particles, edge midpoints and triangle centroids: ``metrics.surface_samples``) into
         every collider, mean speed, pairs of triangles through each other
-        (``intersections``), centre of mass."""
+        (``intersections``; ``crossings`` when already counted), centre of mass; with
+        self-collision, how many times the frame's step was halved against tunnelling."""
         mass = self.model.host_mass
         strain = stretch_strain(self.model, x) if self.model.stretch_count else np.zeros(1)
         kinetic = 0.5 * float(np.sum(mass * np.sum(v * v, axis=1)))
@@ -193,32 +201,33 @@ class Simulation:
                 depth = np.maximum(depth, inside)
         extra = {name: value for effect in self.effects
                  for name, value in effect.frame_metrics(x).items()}
+        if self.guards_crossings:
+            extra["tunnelling_halvings"] = halvings
         return FrameMetrics(
             frame=frame, t=self.frame_time(frame), kinetic_energy=kinetic,
             potential_energy=potential, max_strain=float(np.max(strain)),
             max_penetration=float(depth.max(initial=0.0)),
             penetrating_samples=int(np.count_nonzero(depth)),
             mean_speed=self.mean_free_speed(v),
-            self_intersections=self.intersections.count(x),
+            self_intersections=self.intersections.count(x) if crossings is None else crossings,
             center_of_mass=[float(c) for c in np.sum(mass[:, None] * x, 0) / np.sum(mass)],
             extra=extra)
 
     def guarded_frame(self, frame: int, record: RunRecord, still: bool = False) -> FrameMetrics:
-        """Advance to ``frame`` and check it (``still``: a settling frame, ``settle``). A bad
+        """Advance to ``frame`` and check it (``still``: a settling frame, ``physics.settling``). A bad
         frame is rolled back and retried with the step halved (the smaller step is kept for the
         rest of the run), up to ``simulation.max_retries`` times; then ``UnstableError``.
-        Nothing non-finite leaves."""
+        Nothing non-finite leaves. With self-collision declared, each try is itself guarded
+        against tunnelling (``_advance_without_tunnelling``)."""
         self.backup.copy_from(self.state_in)
+        if self.guards_crossings and self._crossings is None:
+            self._crossings = self.intersections.count(self.positions())
         for attempt in range(self.scene.simulation.max_retries + 1):
-            try:
-                self.advance_frame(frame, record, still)
-                x = self.positions()
-                v = self.state_in.v.to_numpy().astype(np.float64)
-                problem = self.state_problem(x, v)
-            except SolverBreakdown as breakdown:
-                problem = f"could not be solved for ({breakdown})"
+            problem, x, v, crossings, halvings = self._advance_without_tunnelling(
+                frame, record, still)
             if problem is None:
-                return self.measure(frame, x, v)
+                self._crossings = crossings
+                return self.measure(frame, x, v, crossings, halvings)
             if attempt == self.scene.simulation.max_retries:
                 break
             record.retries += 1
@@ -232,6 +241,36 @@ class Simulation:
         where = "settling" if still else f"frame {frame}"
         raise UnstableError(f"{where}: the cloth {problem} with integrator '{integrator}' "
                             f"at dt = {self.time_step.dt:.6g} s{halvings}; {advice}", frame)
+
+    def _advance_without_tunnelling(self, frame: int, record: RunRecord, still: bool):
+        """One try at ``frame`` from the backed-up state: (problem or None, x, v, crossing pairs
+        or None, halvings). With self-collision declared, a frame that ends with more pairs of
+        triangles through each other than it began with has let the cloth pass through itself
+        within a step (a penalty acts only once the layers are within its thickness): it is
+        redone at half the step, then a quarter (``TUNNELLING_HALVINGS``), and the last try is
+        kept, its crossings in the metric. The step goes back to the run's afterwards, so a
+        crossing that a smaller step cannot prevent costs one frame, not the run."""
+        dt, substeps = self.time_step.dt, self.time_step.substeps_per_frame
+        crossings = None
+        for halvings in range(TUNNELLING_HALVINGS + 1 if self.guards_crossings else 1):
+            if halvings:
+                self.state_in.copy_from(self.backup)
+                self.set_time_step(dt / 2 ** halvings, substeps * 2 ** halvings)
+            x = v = None
+            try:
+                self.advance_frame(frame, record, still)
+                x = self.positions()
+                v = self.state_in.v.to_numpy().astype(np.float64)
+                problem = self.state_problem(x, v)
+            except SolverBreakdown as breakdown:
+                problem = f"could not be solved for ({breakdown})"
+            if problem is not None or not self.guards_crossings:
+                break
+            crossings = self.intersections.count(x)
+            if crossings <= self._crossings:
+                break
+        self.set_time_step(dt, substeps)
+        return problem, x, v, crossings, halvings
 
     def advance_frame(self, frame: int, record: RunRecord, still: bool = False) -> None:
         """The substeps to ``frame`` (≥ 1: t from (frame − 1)/fps to frame/fps), one kernel
@@ -258,64 +297,6 @@ class Simulation:
         started = time.perf_counter()
         ti.sync()
         record.wall_seconds["simulate"] += time.perf_counter() - started
-
-    def settle(self, run_record: RunRecord) -> dict | None:
-        """Let the garment come to rest on the body held still in its pose at t = 0, before
-        the animation (``simulation.settle`` > 0). A skirt first gets a small ripple
-        (``cloth.garment.settling_ripple``: its cone is an unstable equilibrium); then steps
-        of the scene's own integrator and step with kinetic damping (every velocity zeroed
-        whenever the kinetic energy has passed a peak, checked every ``SETTLE_CHECK_INTERVAL``
-        or step, so that each swing ends where it is fastest, near its equilibrium) until the
-        garment is at rest: a frame's worth of steps since the last zeroing, after which the
-        free particles' mean speed is below ``simulation.settle_speed``; for at most ``simulation.settle``
-        simulated seconds. (The unbalanced force is no test of rest: in f32 the rounding of
-        positions alone gives a stiff spring a force of k·ε·|x|.) The state is then the run's
-        frame 0. Returns what it did (simulated seconds, the mean speed [m/s], whether it came
-        to rest, and for the implicit integrator its unconverged CG steps, which then do not
-        count as the run's), or None when off; its compile time goes to ``run_record``'s ``compile``, the
-        rest of its wall time to ``settle``."""
-        settings = self.scene.simulation
-        if settings.settle <= 0:
-            return None
-        started = time.perf_counter()
-        record = RunRecord()
-        free = ~self.garment.pinned
-        mass = self.model.host_mass
-        unconverged_before = getattr(self.integrator, "unconverged_steps", 0)
-        rippled = self.positions() + settling_ripple(self.garment) * free[:, None]
-        self.state_in.x.from_numpy(rippled.astype(self.model.numpy_real))
-        dt = self.time_step.dt
-        steps_per_check = max(1, round(SETTLE_CHECK_INTERVAL / dt))
-        checks_per_frame = max(1, round(self.frame_duration / (steps_per_check * dt)))
-        self.set_time_step(dt, steps_per_check)
-        previous, since_zeroed, simulated = 0.0, 0, 0.0
-        mean_speed, at_rest = math.inf, False
-        while simulated < settings.settle - 1e-9 and not at_rest:
-            self.guarded_frame(1, record, still=True)  # may halve the step
-            self.integrator.take_iterations()
-            simulated += self.time_step.dt * self.time_step.substeps_per_frame
-            since_zeroed += 1
-            v = self.state_in.v.to_numpy().astype(np.float64)
-            speed_sq = np.sum(v * v, axis=1)
-            mean_speed = self.mean_free_speed(v)
-            at_rest = since_zeroed >= checks_per_frame and mean_speed < settings.settle_speed
-            kinetic = 0.5 * float(np.sum(mass * speed_sq))
-            if kinetic < previous and not at_rest:
-                self.state_in.v.fill(0)
-                kinetic, since_zeroed = 0.0, 0
-            previous = kinetic
-        dt = self.time_step.dt
-        self.set_time_step(dt, max(1, round(self.frame_duration / dt)))
-        compile_seconds = record.wall_seconds["compile"]
-        run_record.wall_seconds["compile"] += compile_seconds
-        run_record.wall_seconds["settle"] = time.perf_counter() - started - compile_seconds
-        self.settle_report = {"simulated_seconds": simulated, "mean_speed": mean_speed,
-                              "at_rest": bool(at_rest)}
-        if hasattr(self.integrator, "unconverged_steps"):  # settling's own, not the run's
-            self.settle_report["unconverged_steps"] = \
-                self.integrator.unconverged_steps - unconverged_before
-            self.integrator.unconverged_steps = unconverged_before
-        return self.settle_report
 
     def run(self, frame_count: int, on_frame=None, record: RunRecord | None = None,
             first_frame: int = 0) -> RunRecord:

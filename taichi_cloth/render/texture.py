@@ -27,7 +27,7 @@ FOOTPRINT_SAMPLES = 3  # per axis: 3 × 3 bilinear samples averaged per vertex
 def texture_path(scene: Scene) -> Path | None:
     """The image a scene's cloth is printed with, or None for the plain ``cloth_color``."""
     name = scene.render.texture
-    if name == "none" or (name == "" and scene.cloth.shape != "skirt"):
+    if name == "none" or (name == "" and not scene.cloth.is_skirt):
         return None
     if name == "":
         return DEFAULT_TEXTURE

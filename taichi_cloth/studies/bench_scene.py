@@ -196,11 +196,12 @@ def bench_scene_run(scene_name: str, overrides: tuple = ()) -> dict:
     per wall second of the frames, each timed on its own (the frames' seconds include the
     per-frame metrics; the self-intersection count is also timed alone on the last frame)."""
     from taichi_cloth.physics.metrics import RunRecord
+    from taichi_cloth.physics.settling import settle
     started = time.perf_counter()
     simulation = scene_simulation(scene_name, overrides)
     startup = time.perf_counter() - started
     record = RunRecord()
-    simulation.settle(record)
+    settle(simulation, record)
     frames = simulation.scene.frame_count
     compiled_before = record.wall_seconds["compile"]
     started = time.perf_counter()

@@ -1,0 +1,73 @@
+"""Settling: the garment comes to rest on the body, held still in its pose at t = 0, before
+the animation's frame 0 (``simulation.settle`` > 0): kinetic damping with the scene's own
+integrator and step (``settle``)."""
+
+import math
+import time
+
+import numpy as np
+
+from taichi_cloth.cloth.garment import settling_ripple
+from taichi_cloth.physics.metrics import RunRecord
+
+SETTLE_CHECK_INTERVAL = 1.0 / 240.0  # s of settling between two checks of the kinetic energy
+
+
+def settle(simulation, run_record: RunRecord) -> dict | None:
+    """Let the garment come to rest on the body held still in its pose at t = 0, before
+    the animation (the scene's ``simulation.settle`` > 0). A skirt first gets a small ripple
+    (``cloth.garment.settling_ripple``: its cone is an unstable equilibrium); then steps
+    of the scene's own integrator and step with kinetic damping (every velocity zeroed
+    whenever the kinetic energy has passed a peak, checked every ``SETTLE_CHECK_INTERVAL``
+    or step, so that each swing ends where it is fastest, near its equilibrium) until the
+    garment is at rest: a frame's worth of steps since the last zeroing, after which the
+    free particles' mean speed is below the scene's ``settle_speed``; for at most ``settle``
+    simulated seconds. (The unbalanced force is no test of rest: in f32 the rounding of
+    positions alone gives a stiff spring a force of k·ε·|x|.) The state is then the run's
+    frame 0. Returns what it did (simulated seconds, the mean speed [m/s], whether it came
+    to rest, and for the implicit integrator its unconverged CG steps, which then do not
+    count as the run's), kept as ``simulation.settle_report``, or None when off; its compile
+    time goes to ``run_record``'s ``compile``, the rest of its wall time to ``settle``."""
+    settings = simulation.scene.simulation
+    if settings.settle <= 0:
+        return None
+    started = time.perf_counter()
+    record = RunRecord()
+    free = ~simulation.garment.pinned
+    mass = simulation.model.host_mass
+    unconverged_before = getattr(simulation.integrator, "unconverged_steps", 0)
+    rippled = simulation.positions() + settling_ripple(simulation.garment) * free[:, None]
+    simulation.state_in.x.from_numpy(rippled.astype(simulation.model.numpy_real))
+    simulation.forget_crossings()
+    dt = simulation.time_step.dt
+    steps_per_check = max(1, round(SETTLE_CHECK_INTERVAL / dt))
+    checks_per_frame = max(1, round(simulation.frame_duration / (steps_per_check * dt)))
+    simulation.set_time_step(dt, steps_per_check)
+    previous, since_zeroed, simulated = 0.0, 0, 0.0
+    mean_speed, at_rest = math.inf, False
+    while simulated < settings.settle - 1e-9 and not at_rest:
+        simulation.guarded_frame(1, record, still=True)  # may halve the step
+        simulation.integrator.take_iterations()
+        simulated += simulation.time_step.dt * simulation.time_step.substeps_per_frame
+        since_zeroed += 1
+        v = simulation.state_in.v.to_numpy().astype(np.float64)
+        speed_sq = np.sum(v * v, axis=1)
+        mean_speed = simulation.mean_free_speed(v)
+        at_rest = since_zeroed >= checks_per_frame and mean_speed < settings.settle_speed
+        kinetic = 0.5 * float(np.sum(mass * speed_sq))
+        if kinetic < previous and not at_rest:
+            simulation.state_in.v.fill(0)
+            kinetic, since_zeroed = 0.0, 0
+        previous = kinetic
+    dt = simulation.time_step.dt
+    simulation.set_time_step(dt, max(1, round(simulation.frame_duration / dt)))
+    compile_seconds = record.wall_seconds["compile"]
+    run_record.wall_seconds["compile"] += compile_seconds
+    run_record.wall_seconds["settle"] = time.perf_counter() - started - compile_seconds
+    simulation.settle_report = {"simulated_seconds": simulated, "mean_speed": mean_speed,
+                                "at_rest": bool(at_rest)}
+    if hasattr(simulation.integrator, "unconverged_steps"):  # settling's own, not the run's
+        simulation.settle_report["unconverged_steps"] = \
+            simulation.integrator.unconverged_steps - unconverged_before
+        simulation.integrator.unconverged_steps = unconverged_before
+    return simulation.settle_report
