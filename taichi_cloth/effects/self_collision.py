@@ -19,8 +19,10 @@ The elastic part is −∇ of the energy ½·m·k̂·(thickness − d)² (the cl
 tangentially to first order), so momentum is conserved and the energy balance holds.
 
 Broad phase (``effects/spatial_hash.py``), in the kernel: the particles, the triangle centroids
-and the edge midpoints hashed together on a grid whose cell is the longest current edge plus the
-reach (thickness + padding); each item's candidate list holds the pairable items within that
+and the edge midpoints hashed on one grid whose cell is the longest current edge plus the
+reach (thickness + padding), each kind in buckets of its own (a particle walks only the
+centroids near it, a triangle the particles, an edge the midpoints); each item's candidate
+list holds the pairable items within that
 reach (bounding spheres, then the exact distance), in ascending order, at most ``CANDIDATES``
 (more count as ``self_collision_overflow``). The lists are rebuilt when a particle has moved half
 the padding since the last build: a pair not listed was farther than the reach and has closed by
@@ -55,6 +57,7 @@ from taichi_cloth.settings import setting
 CANDIDATES = 32  # the longest candidate list of a particle, triangle or edge
 PADDING = 1.0  # the candidate lists' padding in thicknesses: rebuilt after half of it is moved
 CONTACTS_PER_PARTICLE = 4  # the stiffness bound for dt = "auto": a vertex, corner and edge shares
+PARTICLE, TRIANGLE, EDGE = 0, 1, 2  # the kinds of hashed items: a particle pairs with triangles
 
 
 @dataclass(frozen=True)
@@ -169,18 +172,21 @@ class SelfCollision(Effect):
         particles, triangles = self.model.particle_count, self.triangle_count
         if item < particles:
             self.items.point[item] = x[item]
+            self.items.kind[item] = PARTICLE
             self.item_radius[item] = 0.0
             self.built_at[item] = x[item]
         elif item < particles + triangles:
             corners = self.corners[item - particles]
             centroid = (x[corners[0]] + x[corners[1]] + x[corners[2]]) / 3
             self.items.point[item] = centroid
+            self.items.kind[item] = TRIANGLE
             self.item_radius[item] = ti.max((x[corners[0]] - centroid).norm(), ti.max(
                 (x[corners[1]] - centroid).norm(), (x[corners[2]] - centroid).norm()))
         else:
             ends = self.ends[item - particles - triangles]
             length = (x[ends[1]] - x[ends[0]]).norm()
             self.items.point[item] = 0.5 * (x[ends[0]] + x[ends[1]])
+            self.items.kind[item] = EDGE
             self.item_radius[item] = 0.5 * length
             ti.atomic_max(self.longest_edge[None], length)
 
@@ -211,9 +217,11 @@ class SelfCollision(Effect):
         self.candidate_count[item] = 0
         point, radius = self.items.point[item], self.item_radius[item]
         base = self.items.cell_of(point, size)
+        kind = self.items.kind[item]
+        wanted = TRIANGLE if kind == PARTICLE else (PARTICLE if kind == TRIANGLE else EDGE)
         for offset in ti.grouped(ti.ndrange((-1, 2), (-1, 2), (-1, 2))):
             cell = base + offset
-            bucket = self.items.bucket(cell)
+            bucket = self.items.bucket(cell, wanted)
             for k in range(self.items.bucket_start[bucket], self.items.bucket_start[bucket + 1]):
                 other = self.items.filed[k]
                 if (self.items.cell[other] == cell).all() and self._pairable(item, other) \

@@ -1,17 +1,19 @@
 """A uniform grid of points hashed into buckets, rebuilt inside a kernel (no Python per step): the
 broad phase of self-collision (``effects/self_collision.py``).
 
-``build(cell_size)`` files each of the ``count`` points (``point``, filled by the caller) under its
-cell ⌊p / cell_size⌋: bucket counts by atomic adds, a serial prefix sum, then each point finds its
+``build(cell_size)`` files each of the ``count`` points (``point`` and its ``kind``, filled by the
+caller) under its cell ⌊p / cell_size⌋ and kind (points of different kinds in one cell go to
+different buckets, so a query for one kind does not walk the others): bucket counts by atomic adds, a serial prefix sum, then each point finds its
 slot as the bucket's start plus the number of points of lower index in the same bucket, so every
 bucket lists its points in index order whatever the threads did (a loop over a bucket then sums
 in a fixed order: bit-reproducible on the CPU). A query visits the 27 cells around a cell and keeps
-the points whose cell is the visited one (two cells may share a bucket).
+the points whose cell (and kind) is the visited one (two cells may share a bucket).
 """
 
 import taichi as ti
 
 BUCKETS_PER_POINT = 2
+KIND_OFFSET = 1000003  # cells a kind's grid is shifted along x in the hash (kilometres of cloth)
 
 
 @ti.func
@@ -35,6 +37,7 @@ class SpatialHash:
         self.count = count
         self.bucket_count = max(1, BUCKETS_PER_POINT * count)
         self.point = ti.Vector.field(3, real, count)
+        self.kind = ti.field(ti.i32, count)  # which kind of point (the caller's numbering)
         self.cell = ti.Vector.field(3, ti.i32, count)
         self.bucket_start = ti.field(ti.i32, self.bucket_count + 1)
         self.bucket_fill = ti.field(ti.i32, self.bucket_count)
@@ -42,9 +45,15 @@ class SpatialHash:
         self.filed = ti.field(ti.i32, count)  # the points, bucket by bucket, each in index order
 
     @ti.func
-    def bucket(self, cell) -> ti.i32:
-        """The bucket of a grid cell (``hash_cell``)."""
-        return hash_cell(cell, self.bucket_count)
+    def bucket(self, cell, kind) -> ti.i32:
+        """The bucket of a grid cell's points of one kind (``hash_cell`` of the cell shifted by
+        ``KIND_OFFSET`` cells per kind)."""
+        return hash_cell(cell + ti.Vector([kind * KIND_OFFSET, 0, 0]), self.bucket_count)
+
+    @ti.func
+    def point_bucket(self, i) -> ti.i32:
+        """The bucket point i is filed in."""
+        return self.bucket(self.cell[i], self.kind[i])
 
     @ti.func
     def cell_of(self, position, cell_size):
@@ -61,7 +70,7 @@ class SpatialHash:
         for i in range(self.count):
             if when[None]:
                 self.cell[i] = self.cell_of(self.point[i], cell_size)
-                ti.atomic_add(self.bucket_fill[self.bucket(self.cell[i])], 1)
+                ti.atomic_add(self.bucket_fill[self.point_bucket(i)], 1)
         ti.loop_config(serialize=True)
         for b in range(self.bucket_count):
             if when[None]:
@@ -69,10 +78,10 @@ class SpatialHash:
                 self.bucket_fill[b] = self.bucket_start[b]
         for i in range(self.count):
             if when[None]:
-                self.unsorted[ti.atomic_add(self.bucket_fill[self.bucket(self.cell[i])], 1)] = i
+                self.unsorted[ti.atomic_add(self.bucket_fill[self.point_bucket(i)], 1)] = i
         for i in range(self.count):
             if when[None]:
-                b = self.bucket(self.cell[i])
+                b = self.point_bucket(i)
                 rank = 0
                 for k in range(self.bucket_start[b], self.bucket_start[b + 1]):
                     rank += int(self.unsorted[k] < i)

@@ -198,8 +198,13 @@ def report(rows: list[dict], fits: dict) -> str:
                              f"particle-substeps/s, {row['wall_seconds_per_simulated_second']:.3g} "
                              f"wall s per simulated s{mark}")
         elif kind == "passes":
+            self_collision = "" if "self_collision_us_per_substep" not in row else (
+                f", self-collision {row['self_collision_us_per_substep']:.2f} µs "
+                f"({row['self_collision_rebuilt_us_per_substep']:.2f} µs when its lists are "
+                f"rebuilt)")
             parts.append(f"{row['scene']} passes: springs {row['springs_us_per_substep']:.2f} µs, "
-                         f"contact {row['contact_us_per_substep']:.2f} µs per substep")
+                         f"contact {row['contact_us_per_substep']:.2f} µs{self_collision} "
+                         f"per substep")
         elif kind == "scene-run":
             parts.append(f"{row['scene']} ({row['size']}, {row['integrator']}) whole run: "
                          f"{row['simulated_seconds']:.3g} s simulated in "

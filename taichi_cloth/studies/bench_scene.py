@@ -17,9 +17,11 @@ METRIC_REPEATS = 20  # timings of the self-intersection count on a scene's last 
 @ti.data_oriented
 class PassTimer:
     """Kernels that run one pass of a simulation ``count`` times: the spring pass (grid
-    cloth: pack + SIMD stencil; otherwise the CSR gather) and the contact pass (pose the
-    capsules, then every particle's contact force). Loops are serial when the integrator's
-    are, like the substep they come from."""
+    cloth: pack + SIMD stencil; otherwise the CSR gather), the contact pass (pose the
+    capsules, then every particle's contact force) and the self-collision pass (its
+    ``prepare``, then every particle's gather: with its candidate lists kept, as most
+    evaluations find them, or rebuilt every pass, as after half the padding of motion). Loops
+    are serial when the integrator's are, like the substep they come from."""
 
     def __init__(self, simulation):
         self.simulation = simulation
@@ -27,9 +29,14 @@ class PassTimer:
         self.model = simulation.model
         self.serial = simulation.integrator.serial
         self.out = ti.Vector.field(3, self.model.real, self.model.particle_count)
-        contacts = [e for e in simulation.effects if e.name == "collision"]
-        self.contact = contacts[0] if contacts else None
+        self.contact = self._effect("collision")
         self.has_contact = self.contact is not None
+        self.self_collision = self._effect("self_collision")
+        self.has_self_collision = self.self_collision is not None
+
+    def _effect(self, name: str):
+        """The simulation's effect of that name, or None."""
+        return next((e for e in self.simulation.effects if e.name == name), None)
 
     @ti.func
     def _springs(self, state):
@@ -47,14 +54,28 @@ class PassTimer:
                 self.out[i_p] = self.contact.force(self.model, state.x, state.v, i_p,
                                                    ti.cast(t, self.model.real))
 
+    @ti.func
+    def _self_collision(self, state, t, rebuild: ti.template()):
+        if ti.static(self.has_self_collision):
+            effect = self.self_collision
+            if ti.static(rebuild):  # as if every particle had moved: the lists are stale
+                for i_p in range(self.model.particle_count):
+                    effect.built_at[i_p] = ti.Vector([1e30, 1e30, 1e30], self.model.real)
+            effect.prepare(state.x, state.v, t)
+            for i_p in range(self.model.particle_count):
+                self.out[i_p] = effect.force(self.model, state.x, state.v, i_p,
+                                             ti.cast(t, self.model.real))
+
     @ti.kernel
     def _run(self, state: ti.template(), t: ti.f64, count: ti.i32, which: ti.template()):
         ti.loop_config(serialize=ti.static(self.serial))
         for _ in range(count):
             if ti.static(which == "springs"):
                 self._springs(state)
-            else:
+            elif ti.static(which == "contact"):
                 self._contact(state, t)
+            else:
+                self._self_collision(state, t, ti.static(which == "self_collision_rebuilt"))
 
     def seconds_per_pass(self, which: str, seconds: float, repeats: int) -> float:
         state = self.simulation.state_in
@@ -175,11 +196,20 @@ def bench_scene_integrators(scene_name: str, seconds: float, repeats: int) -> li
 
 
 def bench_passes(scene_name: str, seconds: float, repeats: int) -> dict:
-    """The spring pass and the contact pass of the scene on their own, seconds per pass."""
+    """The spring pass, the contact pass and the self-collision pass of the scene on their own,
+    seconds per pass, at the scene's first frame (settled, when the scene settles)."""
+    from taichi_cloth.physics.metrics import RunRecord
+    from taichi_cloth.physics.settling import settle
     simulation = scene_simulation(scene_name)
+    settle(simulation, RunRecord())
     timer = PassTimer(simulation)
     springs = timer.seconds_per_pass("springs", seconds, repeats)
     contact = timer.seconds_per_pass("contact", seconds, repeats) if timer.has_contact else 0.0
+    self_collision = {}
+    if timer.has_self_collision:
+        for which in ("self_collision", "self_collision_rebuilt"):
+            self_collision[f"{which}_us_per_substep"] = round(
+                1e6 * timer.seconds_per_pass(which, seconds, repeats), 3)
     return {"benchmark": "passes", "scene": scene_name,
             "integrator": simulation.scene.simulation.integrator,
             "size": f"{simulation.garment.columns}x{simulation.garment.rows}",
@@ -187,7 +217,7 @@ def bench_passes(scene_name: str, seconds: float, repeats: int) -> dict:
             "substeps_per_second": 1.0 / (springs + contact),
             "particle_substeps_per_second": simulation.model.particle_count / (springs + contact),
             "springs_us_per_substep": round(1e6 * springs, 3),
-            "contact_us_per_substep": round(1e6 * contact, 3)}
+            "contact_us_per_substep": round(1e6 * contact, 3), **self_collision}
 
 
 def bench_scene_run(scene_name: str, overrides: tuple = ()) -> dict:
