@@ -1,4 +1,4 @@
-# taichi_cloth: every target sets up .venv from requirements.txt on first use; setup also makes
+# taichi_cloth: every target sets up .venv from requirements*.txt on first use; setup also makes
 # sure a Vulkan driver is there for headless rendering (scripts/ensure-vulkan.sh).
 PYTHON ?= python3
 VENV := .venv
@@ -9,10 +9,10 @@ STAMP := $(VENV)/.installed
 
 .PHONY: setup simulate render video compare bench test clean
 
-$(STAMP): requirements.txt
+$(STAMP): requirements.txt requirements-test.txt
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -r requirements.txt
+	$(PY) -m pip install --quiet -r requirements.txt -r requirements-test.txt
 	touch $(STAMP)
 
 setup: $(STAMP)

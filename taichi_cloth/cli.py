@@ -7,6 +7,7 @@ import errno
 import math
 import signal
 import sys
+from pathlib import Path
 
 import numpy as np
 
@@ -15,6 +16,7 @@ from taichi_cloth.config.scene import MESH_FORMATS, load_scene, shipped_scene_na
 from taichi_cloth.errors import InputError, UnstableError
 from taichi_cloth.flags import choice_list
 from taichi_cloth.output.budget import RunLimits
+from taichi_cloth.output.run import CONSOLE_SCRIPT
 from taichi_cloth.runtime import ARCH_NAMES
 
 
@@ -95,7 +97,8 @@ def add_compare_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = ArgumentParser(prog="python -m taichi_cloth",
+    console = Path(sys.argv[0]).name == CONSOLE_SCRIPT
+    parser = ArgumentParser(prog=CONSOLE_SCRIPT if console else "python -m taichi_cloth",
                             description="Mass-spring cloth on a dancing capsule body, in Taichi.")
     commands = parser.add_subparsers(dest="command", required=True, parser_class=ArgumentParser)
     simulate = commands.add_parser("simulate", help="physics only; writes stats.json")

@@ -166,6 +166,12 @@ def test_the_resume_hint_names_this_interpreter_and_resume_once(monkeypatch):
     assert command.split()[0].endswith("python") or "python" in command.split()[0]
 
 
+def test_the_resume_hint_names_the_console_command_when_started_by_it(monkeypatch):
+    from taichi_cloth.output.run import resume_command
+    monkeypatch.setattr(sys, "argv", ["/opt/env/bin/taichi-cloth", "render", "hula", "--resume"])
+    assert resume_command() == "/opt/env/bin/taichi-cloth render hula --resume"
+
+
 def test_a_bad_output_dir_from_the_scene_is_named_as_such(tmp_path, capsys):
     blocker = tmp_path / "file"
     blocker.write_text("")

@@ -23,7 +23,9 @@ from taichi_cloth.errors import InputError
 from taichi_cloth.runtime import ARCH_NAMES
 from taichi_cloth.settings import SourceContext, build_table, numbers_in, setting
 
-SCENES_DIR = Path(__file__).resolve().parents[2] / "scenes"
+# The shipped scenes: the repository's top-level scenes/ (taichi_cloth/scenes links to it, and an
+# installed package carries the files there: pyproject.toml)
+SCENES_DIR = (Path(__file__).parents[1] / "scenes").resolve()
 INTEGRATOR_NAMES = ("euler", "symplectic", "rk4", "implicit")
 SPRING_FAMILIES = ("stretch", "shear")  # "bend" springs come with cloth.bending = "springs"
 BENDING_MODELS = ("curvature", "springs", "none")

@@ -18,15 +18,13 @@ on the relative slip u):
 The elastic part is −∇ of the energy ½·m·k̂·(thickness − d)² (the closest points move
 tangentially to first order), so momentum is conserved and the energy balance holds.
 
-Broad phase (``effects/spatial_hash.py``), in the kernel: the particles, the triangle centroids
-and the edge midpoints hashed on one grid whose cell is the longest current edge plus the
-reach (thickness + padding), each kind in buckets of its own (a particle walks only the
-centroids near it, a triangle the particles, an edge the midpoints); each item's candidate
-list holds the pairable items within that
-reach (bounding spheres, then the exact distance), in ascending order, at most ``CANDIDATES``
-(more count as ``self_collision_overflow``). The lists are rebuilt when a particle has moved half
-the padding since the last build: a pair not listed was farther than the reach and has closed by
-at most the padding, so it is still beyond the thickness.
+Broad phase (``effects/spatial_hash.py``), in the kernel: particles, triangle centroids and edge
+midpoints hashed on a grid of cell = the longest current edge + the reach (thickness + padding),
+each kind in buckets of its own (a particle walks only centroids, a triangle particles, an edge
+midpoints); an item's candidate list holds the pairable items within the reach (bounding
+spheres, then the exact distance), ascending, at most ``CANDIDATES`` (more count as
+``self_collision_overflow``), rebuilt when a particle has moved half the padding since the last
+build: a pair not listed was beyond the reach and has closed by at most the padding.
 
 Gathered, no atomics on forces: a pair's force is computed by each primitive it acts on, over the
 candidate lists: a particle sums its vertex–triangle forces, a triangle its corners' shares into
@@ -57,7 +55,7 @@ from taichi_cloth.settings import setting
 CANDIDATES = 32  # the longest candidate list of a particle, triangle or edge
 PADDING = 1.0  # the candidate lists' padding in thicknesses: rebuilt after half of it is moved
 CONTACTS_PER_PARTICLE = 4  # the stiffness bound for dt = "auto": a vertex, corner and edge shares
-PARTICLE, TRIANGLE, EDGE = 0, 1, 2  # the kinds of hashed items: a particle pairs with triangles
+PARTICLE, TRIANGLE, EDGE = 0, 1, 2  # hashed items' kinds: particle–triangle, edge–edge pairs
 
 
 @dataclass(frozen=True)
@@ -133,6 +131,8 @@ class SelfCollision(Effect):
         self.corners.from_numpy(triangles.astype(np.int32))
         self.ends.from_numpy(edges.astype(np.int32))
         self.built_at.fill(np.inf)  # no lists yet: the first evaluation builds them
+        self.items.kind.from_numpy(np.repeat(np.array([PARTICLE, TRIANGLE, EDGE], np.int32), (
+            self.model.particle_count, self.triangle_count, self.edge_count)))
         targets = (self.triangle_start, self.triangle_item, self.triangle_slot,
                    self.edge_start, self.edge_item, self.edge_slot)
         for target, values in zip(targets, (v for lists in self._lists for v in lists)):
@@ -172,21 +172,18 @@ class SelfCollision(Effect):
         particles, triangles = self.model.particle_count, self.triangle_count
         if item < particles:
             self.items.point[item] = x[item]
-            self.items.kind[item] = PARTICLE
             self.item_radius[item] = 0.0
             self.built_at[item] = x[item]
         elif item < particles + triangles:
             corners = self.corners[item - particles]
             centroid = (x[corners[0]] + x[corners[1]] + x[corners[2]]) / 3
             self.items.point[item] = centroid
-            self.items.kind[item] = TRIANGLE
             self.item_radius[item] = ti.max((x[corners[0]] - centroid).norm(), ti.max(
                 (x[corners[1]] - centroid).norm(), (x[corners[2]] - centroid).norm()))
         else:
             ends = self.ends[item - particles - triangles]
             length = (x[ends[1]] - x[ends[0]]).norm()
             self.items.point[item] = 0.5 * (x[ends[0]] + x[ends[1]])
-            self.items.kind[item] = EDGE
             self.item_radius[item] = 0.5 * length
             ti.atomic_max(self.longest_edge[None], length)
 
@@ -217,8 +214,7 @@ class SelfCollision(Effect):
         self.candidate_count[item] = 0
         point, radius = self.items.point[item], self.item_radius[item]
         base = self.items.cell_of(point, size)
-        kind = self.items.kind[item]
-        wanted = TRIANGLE if kind == PARTICLE else (PARTICLE if kind == TRIANGLE else EDGE)
+        wanted = ti.select(self.items.kind[item] == EDGE, EDGE, TRIANGLE - self.items.kind[item])
         for offset in ti.grouped(ti.ndrange((-1, 2), (-1, 2), (-1, 2))):
             cell = base + offset
             bucket = self.items.bucket(cell, wanted)

@@ -29,6 +29,7 @@ OUTPUT_ROOT = Path("output")
 NAME_LENGTH = 80  # characters of a scene's name in file names
 FRAME_DIR = "frames"  # PNG frames, inside the output folder
 MESH_DIR = "meshes"
+CONSOLE_SCRIPT = "taichi-cloth"  # pyproject.toml's command
 
 
 def safe_name(name: str) -> str:
@@ -256,16 +257,26 @@ def write_partial_outputs(simulation, record, directory: Path, finished: dict, s
                      f"in {directory}; to continue: {resume_command()}\n")
 
 
-def resume_command() -> str:
-    """The command that continues this run: this interpreter (relative to the working folder
-    when inside it, e.g. .venv/bin/python), the same arguments, --resume once."""
+def invocation() -> list[str]:
+    """The words that start this command line again: the ``taichi-cloth`` console script as it
+    was called, else this interpreter (relative to the working folder when inside it, e.g.
+    .venv/bin/python) with ``-m taichi_cloth``."""
+    script = Path(sys.argv[0])
+    if script.name == CONSOLE_SCRIPT:
+        return [sys.argv[0]]
     python = Path(sys.executable)
     try:
         python = python.relative_to(Path.cwd())
     except ValueError:
         pass
+    return [str(python), "-m", "taichi_cloth"]
+
+
+def resume_command() -> str:
+    """The command that continues this run: ``invocation()``, the same arguments, --resume
+    once."""
     arguments = [argument for argument in sys.argv[1:] if argument != "--resume"]
-    return shlex.join([str(python), "-m", "taichi_cloth", *arguments, "--resume"])
+    return shlex.join([*invocation(), *arguments, "--resume"])
 
 
 def summary(stats: dict, directory: Path) -> str:

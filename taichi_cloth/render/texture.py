@@ -18,9 +18,9 @@ import imageio.v3 as iio
 import numpy as np
 
 from taichi_cloth.errors import InputError
-from taichi_cloth.config.scene import Scene
+from taichi_cloth.config.scene import SCENES_DIR, Scene
 
-DEFAULT_TEXTURE = Path(__file__).resolve().parents[2] / "scenes" / "textures" / "pareo.png"
+DEFAULT_TEXTURE = SCENES_DIR / "textures" / "pareo.png"
 FOOTPRINT_SAMPLES = 3  # per axis: 3 × 3 bilinear samples averaged per vertex
 
 
