@@ -12,7 +12,8 @@ from pathlib import Path
 import numpy as np
 
 from taichi_cloth.config.materials import PRESETS
-from taichi_cloth.config.scene import MESH_FORMATS, load_scene, shipped_scene_names
+from taichi_cloth.config.scene import (MESH_FORMATS, SCENES_DIR, load_scene,
+                                       shipped_scene_names)
 from taichi_cloth.errors import InputError, UnstableError
 from taichi_cloth.flags import choice_list
 from taichi_cloth.output.budget import RunLimits
@@ -117,7 +118,8 @@ def build_parser() -> argparse.ArgumentParser:
         "compare", help="every integrator on one scene: error against a reference vs cost, "
                         "table, CSV, plots, side-by-side video")
     add_compare_arguments(compare)
-    commands.add_parser("scenes", help="list the shipped scenes")
+    commands.add_parser("scenes", help="list the shipped scenes, the hard cases (hard/...) and "
+                                       "the textile lab's specimens (lab/...)")
     commands.add_parser("materials", help="list the fabric presets")
     bench = commands.add_parser(
         "bench", help="substep throughput: the reference sheet per size and integrator, a NumPy "
@@ -211,9 +213,15 @@ def render(scene_name: str, overrides: list[str], frames: int | None, out: str |
 
 
 def list_scenes() -> int:
-    for name in shipped_scene_names():
-        scene = load_scene(name)
-        print(f"{name:12s} {scene.scene.description}")
+    """Every shipped scene with its description: the top-level ones, then each folder's
+    (``hard/``: the hard cases, ``lab/``: the textile lab's specimens), by the name that loads
+    them."""
+    names = shipped_scene_names() + sorted(
+        path.relative_to(SCENES_DIR).with_suffix("").as_posix()
+        for path in SCENES_DIR.glob("*/*.toml"))
+    width = max(len(name) for name in names) + 2
+    for name in names:
+        print(f"{name:{width}s}{load_scene(name).scene.description}")
     return 0
 
 

@@ -33,6 +33,18 @@ def hula_meshes(tmp_path_factory):
     return out / "meshes"
 
 
+def test_the_vtu_series_has_a_paraview_collection_with_the_frame_times(hula_meshes):
+    """cloth.pvd and body.pvd list every frame's VTU file, in order, at k/fps seconds."""
+    import xml.etree.ElementTree as ET
+    for name in ("cloth", "body"):
+        root = ET.parse(hula_meshes / f"{name}.pvd").getroot()
+        assert root.get("type") == "Collection"
+        datasets = root.find("Collection").findall("DataSet")
+        assert [d.get("file") for d in datasets] == [f"{name}_{k:05d}.vtu" for k in range(WRITTEN)]
+        assert [float(d.get("timestep")) for d in datasets] == [k / 30 for k in range(WRITTEN)]
+        assert all((hula_meshes / d.get("file")).is_file() for d in datasets)
+
+
 def triangles_of(mesh: meshio.Mesh) -> np.ndarray:
     assert [block.type for block in mesh.cells] == ["triangle"]
     return mesh.cells[0].data
@@ -51,7 +63,7 @@ def test_one_file_per_frame_per_format_and_one_series_per_object(hula_meshes):
         for file_format in ("obj", "ply", "vtu"):
             assert [n for n in names if n.startswith(f"{name}_") and n.endswith(file_format)] == \
                 [f"{name}_{k:05d}.{file_format}" for k in range(WRITTEN)]
-        assert f"{name}.xdmf" in names
+        assert f"{name}.xdmf" in names and f"{name}.pvd" in names
     assert "cloth.mtl" in names and "pareo.png" in names
     assert not [n for n in names if n.startswith(".")]  # no temporary file left
 
@@ -123,6 +135,31 @@ def test_video_reads_back_with_its_frames_and_even_size(tmp_path, video_format):
     expected = (24, 32) if video_format == "mp4" else (25, 33)
     assert frames[0].shape[:2] == expected
     assert sorted(p.name for p in tmp_path.iterdir()) == [target.name]
+
+
+def top_level_boxes(path) -> list[str]:
+    """The types of an MP4 file's top-level boxes in file order (ISO/IEC 14496-12 §4.2: each
+    box starts with a 32-bit big-endian size, then its 4-character type; size 1: a 64-bit size
+    follows)."""
+    data, types, offset = path.read_bytes(), [], 0
+    while offset + 8 <= len(data):
+        size = int.from_bytes(data[offset:offset + 4], "big")
+        types.append(data[offset + 4:offset + 8].decode("latin-1"))
+        if size == 1:
+            size = int.from_bytes(data[offset + 8:offset + 16], "big")
+        offset += size if size else len(data)
+    return types
+
+
+def test_mp4_starts_fast_and_keeps_its_frame_rate(tmp_path):
+    """The index (moov) comes before the frames (mdat), and ffmpeg reads 30 fps back."""
+    target = tmp_path / "clip.mp4"
+    with video_writer(target, "mp4", fps=30) as append:
+        for k in range(4):
+            append(np.full((16, 16, 3), 60 * k, np.uint8))
+    boxes = top_level_boxes(target)
+    assert "moov" in boxes and "mdat" in boxes and boxes.index("moov") < boxes.index("mdat")
+    assert imageio.v3.immeta(target, plugin="FFMPEG")["fps"] == pytest.approx(30.0)
 
 
 def test_an_interrupted_video_or_frame_leaves_no_file(tmp_path, monkeypatch):

@@ -130,7 +130,7 @@ def test_identical_runs_are_bit_identical(scene, extra, tmp_path):
 def test_interrupted_run_keeps_its_frames_and_resumes_to_the_same_result(tmp_path, monkeypatch,
                                                                           capsys, integrator):
     argv = ["simulate", "hula", "--set", "cloth.resolution=[12, 6]", "--frames", "5", "--quiet",
-            "--set", f"simulation.integrator={integrator}"]
+            "--set", f"simulation.integrator={integrator}", "--meshes", "vtu"]
     whole = tmp_path / "whole"
     assert run_cli(argv + ["--out", str(whole)]) == 0
 
@@ -149,6 +149,8 @@ def test_interrupted_run_keeps_its_frames_and_resumes_to_the_same_result(tmp_pat
     assert resumed.pop("resumed_at_frame") == 3
     assert comparable(resumed) == comparable(json.loads((whole / "stats.json").read_text()))
     assert not (stopped / "checkpoint.npz").exists()
+    for name in ("cloth.pvd", "cloth_00001.vtu", "cloth_00005.vtu"):  # the series made whole
+        assert (stopped / "meshes" / name).read_bytes() == (whole / "meshes" / name).read_bytes()
 
 
 def test_resume_refuses_a_checkpoint_of_other_settings(tmp_path, monkeypatch, capsys):

@@ -129,20 +129,36 @@ class XdmfSeries:
             tree.write(temporary, encoding="utf-8", xml_declaration=True)
 
 
+def write_pvd(target: Path, datasets: list[tuple[float, str]]) -> None:
+    """A ParaView collection (``.pvd``) of (time [s], file name beside it) datasets, in order:
+    opening it in ParaView loads the VTU series as one animation with those times."""
+    root = ET.Element("VTKFile", type="Collection", version="0.1")
+    collection = ET.SubElement(root, "Collection")
+    for t, name in datasets:
+        ET.SubElement(collection, "DataSet", timestep=repr(float(t)), part="0", file=name)
+    tree = ET.ElementTree(root)
+    ET.indent(tree, space=" ")
+    with atomic_path(target) as temporary:
+        tree.write(temporary, encoding="utf-8", xml_declaration=True)
+
+
 class MeshSeries:
     """One object's meshes, frame after frame, in each of ``formats`` under ``directory``:
-    ``<name>_00000.obj|ply|vtu`` per frame and ``<name>.xdmf`` for the run (written by
-    ``finish``). ``uv_layout`` = (source (V',), uvs (V', 2), triangles) from ``seam_split``
+    ``<name>_00000.obj|ply|vtu`` per frame, and for the run (written by ``finish``)
+    ``<name>.xdmf`` and, with VTU, the collection ``<name>.pvd`` of every frame from 0 (a
+    resumed run lists the earlier ones it finds on disk, frame k at k/``fps`` s). ``uv_layout`` = (source (V',), uvs (V', 2), triangles) from ``seam_split``
     gives the OBJ files texture coordinates and the material ``<name>.mtl``."""
 
     def __init__(self, directory: Path, name: str, formats, triangles: np.ndarray,
-                 uv_layout=None, material: bool = False):
+                 uv_layout=None, material: bool = False, fps: float = 30.0):
         self.directory, self.name, self.formats = Path(directory), name, tuple(formats)
         self.triangles = np.asarray(triangles)
         self.uv_layout = uv_layout
         self.material = name if material else ""
         self.series = XdmfSeries(self.directory / f"{name}.xdmf", self.triangles) \
             if "xdmf" in self.formats else None
+        self.fps = fps
+        self.appended = set()  # the frames this run wrote
 
     def append(self, frame: int, t: float, points: np.ndarray) -> None:
         """The meshes of ``frame`` at simulated time ``t`` [s], vertex positions ``points`` [m]."""
@@ -158,7 +174,15 @@ class MeshSeries:
                              file_format)
         if self.series is not None:
             self.series.append(frame, t, points)
+        self.appended.add(frame)
 
     def finish(self) -> None:
         if self.series is not None:
             self.series.write()
+        if "vtu" in self.formats and self.appended:
+            first = min(self.appended)
+            earlier = {int(path.stem.rsplit("_", 1)[1])
+                       for path in self.directory.glob(f"{self.name}_[0-9]*.vtu")}
+            frames = sorted({k for k in earlier if k < first} | self.appended)
+            write_pvd(self.directory / f"{self.name}.pvd",
+                      [(k / self.fps, f"{self.name}_{k:05d}.vtu") for k in frames])

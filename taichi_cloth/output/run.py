@@ -79,7 +79,8 @@ def mesh_series(scene: Scene, simulation, directory: Path, formats, body_meshes:
         write_material(folder / "cloth.mtl", "cloth", scene.render.cloth_color,
                        image.name if image is not None else "")
     cloth = MeshSeries(folder, "cloth", formats, simulation.garment.triangles,
-                       (source, uvs * scene.render.texture_repeat, triangles), material=True)
+                       (source, uvs * scene.render.texture_repeat, triangles), material=True,
+                       fps=scene.scene.fps)
     series = [(cloth, lambda t: simulation.positions())]
     if body_meshes and simulation.body_rig is not None:
         from taichi_cloth.render.surfaces import BodySurface
@@ -89,7 +90,8 @@ def mesh_series(scene: Scene, simulation, directory: Path, formats, body_meshes:
             surface.update(t)
             return surface.points()
 
-        series.append((MeshSeries(folder, "body", formats, surface.triangles), body_points))
+        series.append((MeshSeries(folder, "body", formats, surface.triangles,
+                                  fps=scene.scene.fps), body_points))
     return series
 
 
