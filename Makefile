@@ -7,7 +7,7 @@ SCENE ?= hula
 ARGS ?=
 STAMP := $(VENV)/.installed
 
-.PHONY: setup simulate render video compare bench test clean
+.PHONY: setup simulate render video compare bench test check-blender clean
 
 $(STAMP): requirements.txt requirements-test.txt
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -35,6 +35,15 @@ bench: setup
 
 test: setup
 	$(PY) -m pytest -q -n 2 tests
+
+# Blender (pip's bpy, Blender 5.0 as a Python module, ~350 MB) imports the USD stage and the OBJ +
+# PC2 point cache of a short hula run and reads the animated points back (scripts/check-blender.py)
+check-blender: setup
+	test -x .venv-blender/bin/python || $(PYTHON) -m venv .venv-blender
+	.venv-blender/bin/python -m pip install --quiet bpy==5.0.1 numpy==2.4.6
+	$(PY) -m taichi_cloth simulate hula --frames 6 --set "cloth.resolution=[32,14]" --quiet \
+		--meshes obj,usd,pc2 --out output/check-blender
+	.venv-blender/bin/python scripts/check-blender.py output/check-blender/meshes
 
 clean:
 	find output -mindepth 1 ! -name .gitkeep -exec rm -rf {} +

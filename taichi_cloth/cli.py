@@ -67,8 +67,10 @@ def mesh_formats(text: str) -> tuple[str, ...]:
 def add_mesh_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--meshes", type=mesh_formats, metavar="LIST",
                         help=f"cloth meshes per frame, a comma list of {','.join(MESH_FORMATS)} "
-                             "(obj/ply/vtu: one file per frame; xdmf: one time series) under "
-                             "meshes/ (default: the scene's output.meshes)")
+                             "(obj/ply/vtu: one file per frame; xdmf: one time series; usd: "
+                             "one stage with the body, needs usd-core; pc2: a point cache "
+                             "beside an OBJ, for Blender's Mesh Cache) under meshes/ (default: "
+                             "the scene's output.meshes)")
     parser.add_argument("--body-meshes", action="store_true",
                         help="also write the body's capsules as meshes")
 

@@ -1,6 +1,9 @@
-"""Exported files: meshes (OBJ with UVs, PLY, VTU, one XDMF series) read back with meshio, videos
-read back with imageio, and writes that leave whole files or nothing. No window is needed."""
+"""Exported files: meshes (OBJ with UVs, PLY, VTU, one XDMF series) read back with meshio, the USD
+stage with pxr, the PC2 point cache by its byte layout (and, when Blender's Python module is
+installed, both in Blender), videos read back with imageio, and writes that leave whole files or
+nothing. No window is needed."""
 
+import subprocess
 from pathlib import Path
 
 import imageio
@@ -21,7 +24,8 @@ from taichi_cloth.render.surfaces import capsule_template
 FRAMES = 3  # simulated; files are written for frames 0 (the start) … FRAMES
 WRITTEN = FRAMES + 1
 COLUMNS, ROWS = 16, 8
-FORMATS = ("obj", "ply", "vtu", "xdmf")
+FORMATS = ("obj", "ply", "vtu", "xdmf", "usd", "pc2")
+BLENDER_PYTHON = Path(__file__).resolve().parents[1] / ".venv-blender" / "bin" / "python"
 
 
 @pytest.fixture(scope="module")
@@ -45,6 +49,86 @@ def test_the_vtu_series_has_a_paraview_collection_with_the_frame_times(hula_mesh
         assert all((hula_meshes / d.get("file")).is_file() for d in datasets)
 
 
+def obj_vertices(path) -> np.ndarray:
+    return np.array([[float(c) for c in line.split()[1:4]]
+                     for line in path.read_text().splitlines() if line.startswith("v ")])
+
+
+def test_usd_stage_holds_the_animation(hula_meshes):
+    """pxr reads animation.usd: y up, metres, 30 fps from frame 0 to FRAMES; the cloth's points
+    at every frame are that frame's OBJ vertices (float32), its normals unit, its UVs one per
+    point; every capsule's transform carries its local segment (0, 0, ±height/2) onto the
+    body's capsule ends at that frame's time."""
+    from pxr import Usd, UsdGeom
+    stage = Usd.Stage.Open(str(hula_meshes / "animation.usd"))
+    assert UsdGeom.GetStageUpAxis(stage) == UsdGeom.Tokens.y
+    assert UsdGeom.GetStageMetersPerUnit(stage) == 1.0
+    assert stage.GetTimeCodesPerSecond() == 30 and stage.GetFramesPerSecond() == 30
+    assert (stage.GetStartTimeCode(), stage.GetEndTimeCode()) == (0, FRAMES)
+    mesh = UsdGeom.Mesh(stage.GetPrimAtPath("/World/Cloth"))
+    assert mesh.GetPointsAttr().GetTimeSamples() == list(range(WRITTEN))
+    st = UsdGeom.PrimvarsAPI(mesh).GetPrimvar("st").Get()
+    for frame in range(WRITTEN):
+        points = np.array(mesh.GetPointsAttr().Get(frame))
+        np.testing.assert_allclose(points, obj_vertices(hula_meshes / f"cloth_{frame:05d}.obj"),
+                                   atol=2e-6)
+        normals = np.array(mesh.GetNormalsAttr().Get(frame))
+        np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-5)
+        assert len(st) == len(points)
+    body = Body("hula")
+    pose = body.pose(2 / 30)
+    ends = np.concatenate([pose.capsule_a, pose.display_capsule_a]), \
+        np.concatenate([pose.capsule_b, pose.display_capsule_b])
+    for index in range(body.capsule_count + body.display_capsule_count):
+        holder = stage.GetPrimAtPath(f"/World/Body/capsule_{index:02d}")
+        capsule = UsdGeom.Capsule(stage.GetPrimAtPath(f"/World/Body/capsule_{index:02d}/shape"))
+        matrix = np.array(UsdGeom.Xformable(holder).ComputeLocalToWorldTransform(2))
+        half = 0.5 * capsule.GetHeightAttr().Get(2)
+        for end, z in ((ends[0][index], -half), (ends[1][index], half)):
+            np.testing.assert_allclose(np.array([0.0, 0.0, z, 1.0]) @ matrix, [*end, 1.0],
+                                       atol=1e-5)
+
+
+def test_pc2_point_cache_is_every_frame_of_its_obj(hula_meshes):
+    """cloth.pc2 (read by the format's layout: a 12-byte signature, version, count, start,
+    rate, samples, float32 points) holds every frame's vertices in cloth.obj's layout."""
+    data = (hula_meshes / "cloth.pc2").read_bytes()
+    assert data[:12] == b"POINTCACHE2\0"
+    version, count = np.frombuffer(data, "<i4", 2, 12)
+    start, rate = np.frombuffer(data, "<f4", 2, 20)
+    samples = int(np.frombuffer(data, "<i4", 1, 28)[0])
+    assert (version, start, rate, samples) == (1, 0.0, 1.0, WRITTEN)
+    frames = np.frombuffer(data, "<f4", samples * count * 3, 32).reshape(samples, count, 3)
+    assert len(data) == 32 + frames.nbytes
+    np.testing.assert_allclose(obj_vertices(hula_meshes / "cloth.obj"), frames[0],
+                               atol=2e-6)
+    for frame in range(WRITTEN):
+        np.testing.assert_allclose(frames[frame],
+                                   obj_vertices(hula_meshes / f"cloth_{frame:05d}.obj"),
+                                   atol=2e-6)
+
+
+def test_usd_without_usd_core_is_one_line_exit_2_before_simulating(tmp_path, monkeypatch,
+                                                                    capsys):
+    import sys
+    monkeypatch.setitem(sys.modules, "pxr", None)  # as if usd-core were not installed
+    out = tmp_path / "out"
+    assert main(["simulate", "sheet", "--frames", "1", "--meshes", "usd", "--out", str(out)]) == 2
+    error = capsys.readouterr().err.strip()
+    assert "usd-core" in error and "\n" not in error
+    assert not (out / "stats.json").exists()
+
+
+@pytest.mark.skipif(not BLENDER_PYTHON.exists(),
+                    reason="Blender's Python module is not installed: `make check-blender` "
+                           "installs it (pip's bpy, ~350 MB) and runs this check")
+def test_blender_reads_the_usd_stage_and_the_point_cache(hula_meshes):
+    result = subprocess.run([str(BLENDER_PYTHON), "scripts/check-blender.py", str(hula_meshes)],
+                            cwd=BLENDER_PYTHON.parents[2], capture_output=True, text=True,
+                            timeout=300)
+    assert result.returncode == 0, result.stdout + result.stderr
+
+
 def triangles_of(mesh: meshio.Mesh) -> np.ndarray:
     assert [block.type for block in mesh.cells] == ["triangle"]
     return mesh.cells[0].data
@@ -64,6 +148,7 @@ def test_one_file_per_frame_per_format_and_one_series_per_object(hula_meshes):
             assert [n for n in names if n.startswith(f"{name}_") and n.endswith(file_format)] == \
                 [f"{name}_{k:05d}.{file_format}" for k in range(WRITTEN)]
         assert f"{name}.xdmf" in names and f"{name}.pvd" in names
+    assert {"animation.usd", "cloth.obj", "cloth.pc2"} <= set(names)
     assert "cloth.mtl" in names and "pareo.png" in names
     assert not [n for n in names if n.startswith(".")]  # no temporary file left
 

@@ -29,7 +29,7 @@ SCENES_DIR = (Path(__file__).parents[1] / "scenes").resolve()
 INTEGRATOR_NAMES = ("euler", "symplectic", "rk4", "implicit")
 SPRING_FAMILIES = ("stretch", "shear")  # "bend" springs come with cloth.bending = "springs"
 BENDING_MODELS = ("curvature", "springs", "none")
-MESH_FORMATS = ("obj", "ply", "vtu", "xdmf")
+MESH_FORMATS = ("obj", "ply", "vtu", "xdmf", "usd", "pc2")
 
 
 @dataclass(frozen=True)
@@ -195,7 +195,8 @@ class RenderConfig:
 class OutputConfig:
     dir: str = setting("", "str", doc="output folder; default output/<scene>")
     meshes: tuple = setting([], "str_list", choices=MESH_FORMATS,
-                            doc="cloth meshes per frame (xdmf: one time series)")
+                            doc="cloth meshes per frame (xdmf: one time series; usd: one "
+                                "stage with the body; pc2: a point cache beside an OBJ)")
     video: str = setting("", "str", choices=("", "mp4", "gif"), doc="render: also a video")
     body_meshes: bool = setting(False, "bool", doc="also export the body capsules as meshes")
 

@@ -73,15 +73,27 @@ def mesh_series(scene: Scene, simulation, directory: Path, formats, body_meshes:
     folder = directory / MESH_DIR
     source, uvs, triangles = seam_split(simulation.garment)
     image = texture_path(scene)
-    if "obj" in formats:
+    if "obj" in formats or "pc2" in formats:
         if image is not None:
             copy_file(image, folder / image.name)
         write_material(folder / "cloth.mtl", "cloth", scene.render.cloth_color,
                        image.name if image is not None else "")
-    cloth = MeshSeries(folder, "cloth", formats, simulation.garment.triangles,
-                       (source, uvs * scene.render.texture_repeat, triangles), material=True,
-                       fps=scene.scene.fps)
+    uv_layout = (source, uvs * scene.render.texture_repeat, triangles)
+    cloth = MeshSeries(folder, "cloth", formats, simulation.garment.triangles, uv_layout,
+                       material=True, fps=scene.scene.fps)
     series = [(cloth, lambda t: simulation.positions())]
+    body = simulation.body_rig.body if simulation.body_rig is not None else None
+    if "usd" in formats:
+        from taichi_cloth.output.usd import USD_FILE, UsdAnimation
+        if image is not None:
+            copy_file(image, folder / image.name)
+        series.append((UsdAnimation(folder / USD_FILE, uv_layout, scene.scene.fps,
+                                    scene.render.cloth_color,
+                                    image.name if image is not None else "", body),
+                       lambda t: simulation.positions()))
+    if "pc2" in formats:
+        from taichi_cloth.output.pointcache import PointCache
+        series.append((PointCache(folder, uv_layout, "cloth"), lambda t: simulation.positions()))
     if body_meshes and simulation.body_rig is not None:
         from taichi_cloth.render.surfaces import BodySurface
         surface = BodySurface(simulation.body_rig.body)
@@ -123,15 +135,20 @@ def run_in_folder(scene: Scene, frame_count: int, folder: OwnedFolder, quiet: bo
     from taichi_cloth.physics.simulation import Simulation
     from taichi_cloth.physics.settling import settle
     directory = folder.directory
+    if "usd" in meshes:  # a missing usd-core is said before anything is simulated
+        from taichi_cloth.output.usd import import_pxr
+        import_pxr()
     simulation = Simulation.from_scene(scene)
     check_time(simulation, frame_count, limits)
     outputs = outputs_fingerprint(size, video, meshes, body_meshes)
     record = RunRecord()
     first_frame = 0
     if resume:
-        if "xdmf" in meshes:
-            raise InputError("--resume: an XDMF series cannot be continued; run again without "
-                             "--resume, or without xdmf")
+        whole = [name for name in ("xdmf", "usd", "pc2") if name in meshes]
+        if whole:
+            raise InputError(f"--resume: a {whole[0]} file is written whole at the end and "
+                             f"cannot be continued; run again without --resume, or without "
+                             f"{whole[0]}")
         checkpoint = load_checkpoint(directory, scene, simulation.model.particle_count, outputs)
         simulation.restore(checkpoint.snapshot)
         first_frame = checkpoint.next_frame
