@@ -204,3 +204,20 @@ def test_a_full_disk_is_one_line_exit_1_and_keeps_the_whole_frames(tmp_path, cap
     stats = json.loads((out / "stats.json").read_text())
     assert stats["stopped"] == "file-system error" and len(stats["per_frame"]) == 2
     assert (out / "checkpoint.npz").exists() and not (out / LOCK_NAME).exists()
+
+
+def test_the_summary_fits_in_100_columns():
+    """The run's summary at its longest (a long scene name, halvings, the auto step, six
+    phases): every line but the folder's path within 100 columns."""
+    from taichi_cloth.output.run import summary
+    stats = {"scene": "x" * 24, "frames": 100000, "integrator": "symplectic", "dt": 1.23456e-05,
+             "substeps_per_frame": 27000, "retries": 12,
+             "time_step": {"requested": "auto", "stable_dt": 1.2345e-05, "omega_max": 1.2345e5},
+             "max_strain": 0.12345, "max_penetration": 0.012345, "max_self_intersections": 123456,
+             "wall_seconds": {name: 12345.678 for name in ("compile", "settle", "simulate",
+                                                           "render", "export", "other")}}
+    text = summary(stats, Path("/a/long/output/folder"))
+    assert text.endswith(" → /a/long/output/folder") and "symplectic" in text
+    lines = text.removesuffix(" → /a/long/output/folder").splitlines()
+    assert len(lines) <= 6 and all(len(line) <= 100 for line in lines)
+    assert sum(line.count("12345.68 s") for line in lines) == 6

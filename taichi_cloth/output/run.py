@@ -9,6 +9,7 @@ import re
 import shlex
 import sys
 import tempfile
+import textwrap
 import time
 from pathlib import Path
 
@@ -299,16 +300,19 @@ def resume_command() -> str:
 
 
 def summary(stats: dict, directory: Path) -> str:
-    """One line: frames, integrator and dt, strain and penetration, seconds per phase, where."""
+    """A few lines of at most 100 columns (the folder's path aside): frames, integrator and step
+    (and how ``dt = "auto"`` chose it); strain, penetration and self-crossings; seconds per phase
+    and where the files are."""
     seconds = ", ".join(f"{phase} {value:.2f} s" for phase, value in stats["wall_seconds"].items())
     step = stats["time_step"]
-    auto = ""
+    retries = f", {stats['retries']} halvings" if stats["retries"] else ""
+    lines = [f"{stats['scene']}: {stats['frames']} frames, {stats['integrator']}, dt "
+             f"{stats['dt']:.4g} s × {stats['substeps_per_frame']} a frame{retries}"]
     if step["requested"] == "auto":
         bound = "none" if step["stable_dt"] is None else f"{step['stable_dt']:.3g} s"
-        auto = f"auto: ω_max {step['omega_max']:.4g} rad/s, stability bound {bound}; "
-    retries = f", {stats['retries']} halvings" if stats["retries"] else ""
-    return (f"{stats['scene']}: {stats['frames']} frames, {stats['integrator']} at dt = "
-            f"{stats['dt']:.6g} s ({auto}{stats['substeps_per_frame']} substeps/frame"
-            f"{retries}), max strain "
-            f"{stats['max_strain']:.4f}, max penetration {stats['max_penetration'] * 1000:.2f} mm; "
-            f"{seconds} → {directory}")
+        lines.append(f"  dt auto: ω_max {step['omega_max']:.3g} rad/s, stability bound {bound}")
+    lines.append(f"  max strain {stats['max_strain']:.4f}, max penetration "
+                 f"{stats['max_penetration'] * 1000:.2f} mm, at most "
+                 f"{stats['max_self_intersections']} pairs of triangles through each other")
+    lines += textwrap.wrap(seconds, 100, initial_indent="  ", subsequent_indent="  ")
+    return "\n".join(lines) + f" → {directory}"
