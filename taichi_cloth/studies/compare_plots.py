@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 from matplotlib import colormaps
 from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
 
 from taichi_cloth.output.files import atomic_path
 
@@ -23,9 +24,10 @@ INTEGRATOR_TITLES = {"euler": "explicit Euler", "symplectic": "symplectic (FB) E
 DPI = 110
 
 
-def save(figure: Figure, target: Path) -> None:
-    """``figure`` as a PNG at ``target``, atomically."""
-    figure.tight_layout()
+def save(figure: Figure, target: Path, bottom: float = 0.0) -> None:
+    """``figure`` as a PNG at ``target``, atomically; the panels laid out above ``bottom`` (a
+    fraction of the height kept for a figure legend)."""
+    figure.tight_layout(rect=(0.0, bottom, 1.0, 1.0))
     with atomic_path(target, ".png") as temporary:
         figure.savefig(temporary, format="png", dpi=DPI)
 
@@ -153,11 +155,15 @@ def plot_energy(summary: dict, runs: list, reference, target: Path) -> None:
         axes.set_title(title, fontsize=9)
         axes.set_xlabel("simulated time t [s]")
         axes.grid(True, alpha=0.3)
-        axes.legend(fontsize=7)
     panels[0].set_ylabel("total energy E(t) − E_ref(first frame) [J]")
+    # one legend for every panel, below them, where it covers no curve
+    handles = [Line2D([], [], color=colors[dt], label=f"dt = {milliseconds(dt)}") for dt in dts]
+    handles.append(Line2D([], [], color="black", linestyle="--", linewidth=1, label="reference"))
+    figure.legend(handles=handles, loc="lower center", ncol=min(len(handles), 8), fontsize=8,
+                  frameon=False)
     figure.suptitle(f"Energy over time (kinetic + gravity + springs)  —  {setting(summary)}",
                     fontsize=10)
-    save(figure, target)
+    save(figure, target, bottom=0.08)
 
 
 def write_plots(directory: Path, summary: dict, runs: list, reference) -> None:
