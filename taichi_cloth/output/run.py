@@ -23,7 +23,7 @@ from taichi_cloth.output.budget import RunLimits, check_memory, check_time
 from taichi_cloth.output.folder import OwnedFolder
 from taichi_cloth.output.meshes import MeshSeries, seam_split, write_material
 from taichi_cloth.output.video import video_writer
-from taichi_cloth.output.progress import Progress
+from taichi_cloth.output.progress import Progress, announce
 from taichi_cloth.config.scene import Scene
 
 OUTPUT_ROOT = Path("output")
@@ -136,6 +136,7 @@ def run_in_folder(scene: Scene, frame_count: int, folder: OwnedFolder, quiet: bo
     from taichi_cloth.physics.simulation import Simulation
     from taichi_cloth.physics.settling import settle
     directory = folder.directory
+    announce(scene.name, "building the cloth, the body and the effects", quiet)
     if "usd" in meshes:  # a missing usd-core is said before anything is simulated
         from taichi_cloth.output.usd import import_pxr
         import_pxr()
@@ -163,6 +164,10 @@ def run_in_folder(scene: Scene, frame_count: int, folder: OwnedFolder, quiet: bo
             raise InputError(f"--resume: frames 0–{first_frame - 1} are done already; ask for "
                              f"more with --frames")
     else:
+        if scene.simulation.settle > 0:
+            announce(scene.name, f"settling on the still body before frame 0 (at most "
+                                 f"{scene.simulation.settle:g} s simulated; kernels compile "
+                                 f"first)", quiet)
         settle(simulation, record)
     finished = {}  # the last whole frame: its index and host copies of its state
     with contextlib.ExitStack() as stack:
