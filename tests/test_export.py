@@ -199,6 +199,26 @@ def test_xdmf_series_has_one_step_per_frame_with_moving_geometry(hula_meshes):
         assert reader.read_points_cells()[0].shape == (body_counts()[0], 3)
 
 
+def test_xdmf_heavy_data_is_every_frames_geometry_in_hdf5(hula_meshes):
+    """Each step's Geometry points into cloth.h5 (h5py) at that frame's vertices (its VTU's),
+    all steps share one topology dataset, and no heavy data sits in the XML."""
+    import xml.etree.ElementTree as ET
+    import h5py
+    root = ET.parse(hula_meshes / "cloth.xdmf").getroot()
+    grids = root.find("Domain").find("Grid").findall("Grid")
+    assert len(grids) == WRITTEN
+    with h5py.File(hula_meshes / "cloth.h5", "r") as data:
+        for frame, grid in enumerate(grids):
+            items = {tag: grid.find(tag).find("DataItem") for tag in ("Topology", "Geometry")}
+            assert all(item.get("Format") == "HDF" for item in items.values())
+            assert items["Topology"].text == "cloth.h5:/topology"
+            path = items["Geometry"].text.split(":", 1)[1]
+            np.testing.assert_allclose(
+                data[path][()], meshio.read(hula_meshes / f"cloth_{frame:05d}.vtu").points,
+                atol=1e-6)
+    assert (hula_meshes / "cloth.xdmf").stat().st_size < 200 + 600 * WRITTEN  # references only
+
+
 def test_seam_split_of_a_sheet_changes_nothing():
     scene = load_scene("sheet", ("cloth.resolution=[5,4]",))
     garment = build_garment(scene.cloth, scene.material, None, scene.path)

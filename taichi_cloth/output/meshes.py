@@ -75,58 +75,58 @@ def write_meshio(target: Path, points: np.ndarray, triangles: np.ndarray, file_f
             temporary.write_bytes(PLY_TIMESTAMP.sub(rb"\1\n", temporary.read_bytes(), count=1))
 
 
-XINCLUDE_NAMESPACE = "http://www.w3.org/2001/XInclude"
-XINCLUDE = f"{{{XINCLUDE_NAMESPACE}}}include"
-
-
-def data_item(array: np.ndarray, number_type: str, fmt: str) -> ET.Element:
-    """An XDMF DataItem holding ``array`` inline as XML text."""
-    item = ET.Element("DataItem", Dimensions=" ".join(map(str, array.shape)),
-                      NumberType=number_type, Precision="4" if number_type == "Int" else "8",
-                      Format="XML")
-    text = io.StringIO()
-    np.savetxt(text, array, fmt=fmt)
-    item.text = "\n" + text.getvalue()
-    return item
-
-
 class XdmfSeries:
-    """One moving triangle mesh as a single XDMF 3 file for ParaView: a temporal collection with
-    one uniform grid per frame, each with its time [s] and its own geometry; the first holds the
-    topology and the others include it (XInclude). All inline XML, so no HDF5 is needed.
-    (meshio's ``TimeSeriesWriter`` keeps one geometry for all steps, which cannot show cloth
-    moving.)"""
+    """One moving triangle mesh as an XDMF 3 file for ParaView (``<name>.xdmf``) with its heavy
+    data in HDF5 beside it (``<name>.h5``: the triangles at ``/topology``, each frame's
+    vertices as float32 at ``/points/frame_NNNNN``, gzip-compressed, without timestamps so
+    that identical runs write identical bytes): a temporal collection of one uniform grid per
+    frame, each with its time [s], the shared topology and its own geometry. (meshio's
+    ``TimeSeriesWriter`` keeps one geometry for all steps, which cannot show cloth moving.)
+    The frames are gathered in memory and both files written whole by ``write``."""
 
     def __init__(self, target: Path, triangles: np.ndarray):
         self.target = Path(target)
-        self.triangles = np.asarray(triangles)
-        self.root = ET.Element("Xdmf", Version="3.0")
-        self.collection = ET.SubElement(ET.SubElement(self.root, "Domain"), "Grid",
-                                        Name=self.target.stem, GridType="Collection",
-                                        CollectionType="Temporal")
-        self.first = ""
+        self.triangles = np.asarray(triangles, dtype=np.int32)
+        self.frames = []  # (frame, t [s], points (V, 3) float32)
 
     def append(self, frame: int, t: float, points: np.ndarray) -> None:
-        name = f"frame_{frame:05d}"
-        grid = ET.SubElement(self.collection, "Grid", Name=name, GridType="Uniform")
-        if self.first:
-            ET.SubElement(grid, XINCLUDE,
-                          xpointer=f"xpointer(//Grid[@Name='{self.first}']/Topology)")
-        else:
-            self.first = name
-            topology = ET.SubElement(grid, "Topology", TopologyType="Triangle",
-                                     NumberOfElements=str(len(self.triangles)))
-            topology.append(data_item(self.triangles, "Int", "%d %d %d"))
-        geometry = ET.SubElement(grid, "Geometry", GeometryType="XYZ")
-        geometry.append(data_item(np.asarray(points), "Float", "%.6f %.6f %.6f"))
-        ET.SubElement(grid, "Time", Value=repr(float(t)))
+        self.frames.append((frame, float(t), np.asarray(points, dtype=np.float32)))
 
     def write(self) -> None:
-        ET.register_namespace("xi", XINCLUDE_NAMESPACE)
-        tree = ET.ElementTree(self.root)
+        import h5py
+        heavy = self.target.with_suffix(".h5")
+        with atomic_path(heavy) as temporary:
+            with h5py.File(temporary, "w", track_order=True) as data:
+                data.create_dataset("topology", data=self.triangles, track_times=False)
+                group = data.create_group("points", track_order=True)
+                for frame, _, points in self.frames:
+                    group.create_dataset(f"frame_{frame:05d}", data=points, compression="gzip",
+                                         compression_opts=4, track_times=False)
+        root = ET.Element("Xdmf", Version="3.0")
+        collection = ET.SubElement(ET.SubElement(root, "Domain"), "Grid",
+                                   Name=self.target.stem, GridType="Collection",
+                                   CollectionType="Temporal")
+        for frame, t, points in self.frames:
+            grid = ET.SubElement(collection, "Grid", Name=f"frame_{frame:05d}", GridType="Uniform")
+            topology = ET.SubElement(grid, "Topology", TopologyType="Triangle",
+                                     NumberOfElements=str(len(self.triangles)))
+            topology.append(hdf_item(f"{heavy.name}:/topology", self.triangles.shape, "Int"))
+            geometry = ET.SubElement(grid, "Geometry", GeometryType="XYZ")
+            geometry.append(hdf_item(f"{heavy.name}:/points/frame_{frame:05d}", points.shape,
+                                     "Float"))
+            ET.SubElement(grid, "Time", Value=repr(t))
+        tree = ET.ElementTree(root)
         ET.indent(tree, space=" ")
         with atomic_path(self.target) as temporary:
             tree.write(temporary, encoding="utf-8", xml_declaration=True)
+
+
+def hdf_item(reference: str, shape: tuple, number_type: str) -> ET.Element:
+    """An XDMF DataItem that points at an HDF5 dataset (``file.h5:/path``) of 4-byte numbers."""
+    item = ET.Element("DataItem", Dimensions=" ".join(map(str, shape)), NumberType=number_type,
+                      Precision="4", Format="HDF")
+    item.text = reference
+    return item
 
 
 def write_pvd(target: Path, datasets: list[tuple[float, str]]) -> None:
