@@ -266,3 +266,29 @@ def test_twirl_spins_on_the_spot_then_stands_and_repeats():
     np.testing.assert_allclose(quarter.capsule_b[:, 1], rest.capsule_b[:, 1], atol=1e-12)
     later = body.pose(1.5 * beat + body.loop_period)
     np.testing.assert_allclose(later.capsule_b, quarter.capsule_b, atol=1e-9)
+
+
+def test_sway_rocks_the_hips_over_planted_feet_and_loops():
+    """sway: the feet never move, the pelvis swings HIP_SWAY·amplitude to each side over a
+    SWAY_BEATS cycle, velocities are the positions' derivatives, and it repeats every loop."""
+    from taichi_cloth.body.dancer import SWAY_BEATS
+    from taichi_cloth.body.hula import HIP_SWAY
+    body = Body(motion="sway")
+    beat = 60.0 / body.tempo
+    shin = [i for i, name in enumerate(body.capsule_names) if name.startswith("shin")]
+    times = body.ease_in + np.linspace(0.0, SWAY_BEATS * beat, 41)
+    poses = [body.pose(t) for t in times]
+    for pose in poses:
+        np.testing.assert_allclose(pose.capsule_b[shin[-1]], poses[0].capsule_b[shin[-1]],
+                                   atol=1e-6)  # planted (the soft reach limit: ~2e-8 m)
+    sideways = np.array([pose.pelvis_position[0] for pose in poses])
+    assert sideways.max() == pytest.approx(HIP_SWAY, rel=0.02)
+    assert sideways.min() == pytest.approx(-HIP_SWAY, rel=0.02)
+    step = 1e-6
+    for t in (1.3, 2.7):
+        before, now, after = body.pose(t - step), body.pose(t), body.pose(t + step)
+        np.testing.assert_allclose(now.pelvis_velocity,
+                                   (after.pelvis_position - before.pelvis_position) / (2 * step),
+                                   atol=1e-6)
+        later = body.pose(t + body.loop_period)
+        np.testing.assert_allclose(later.capsule_a, now.capsule_a, atol=1e-9)

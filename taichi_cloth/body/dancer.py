@@ -30,6 +30,11 @@ finite sum of sinusoids of the beat phase, so the dance is C-infinity and
 repeats exactly every ``LOOP_BEATS`` beats; a quintic smoothstep envelope
 eases it in from the rest pose.
 
+Motion ``"sway"``: the hula's stance with the feet planted, the weight
+rocking from side to side every ``SWAY_BEATS`` beats (the pelvis shifting
+and tilting over the weight foot, the knees bending with the sink), no
+steps and no hip circle: slow and calm at a low tempo.
+
 Motion ``"twirl"``: the rest pose turned about the vertical through her
 feet by the spin-and-stop angle of ``body.twirl`` (for a circle skirt).
 
@@ -53,7 +58,8 @@ from taichi_cloth.body.hula import (BACK_COUNTER, COMPLEX_STEP, FOOT_LIFT, HIP_C
                                    PELVIS_DIP, PELVIS_PITCH, PELVIS_ROLL, PELVIS_SINK, PELVIS_YAW,
                                    STEP_LENGTH, kaholo_series, smoothstep)
 
-MOTION_NAMES = ("still", "hula", "twirl")
+MOTION_NAMES = ("still", "hula", "sway", "twirl")
+SWAY_BEATS = 4  # a sway: the weight over the left foot, then the right, in this many beats
 CAPSULE_LAYOUT_NAMES = ("coarse", "split")
 
 # --- rest skeleton, metres at scale 1 ---------------------------------------
@@ -193,7 +199,8 @@ class Body:
     Parameters
     ----------
     motion : ``"still"`` (rest pose forever), ``"hula"`` (kaholo steps with hip sway and
-        'ami hip circles) or ``"twirl"`` (the rest pose spinning on the spot and stopping,
+        'ami hip circles), ``"sway"`` (the weight rocking side to side, feet planted) or
+        ``"twirl"`` (the rest pose spinning on the spot and stopping,
         ``body.twirl``).
     tempo : beats per minute of the dance (> 0).
     amplitude : dimensionless size of the motion (>= 0); twirl: 2 turns per loop at 1; hula: 1 is
@@ -237,7 +244,7 @@ class Body:
         self.capsule_layout = capsules
         self.scale = float(scale)
         self.ease_in = float(ease_in)
-        self._dance_gain = 1.0 if motion == "hula" else 0.0
+        self._dance_gain = 1.0 if motion in ("hula", "sway") else 0.0
 
         tiles = _CAPSULE_TILES[capsules]
         capsule_names, capsule_bone, capsule_fraction, capsule_radius = [], [], [], []
@@ -318,15 +325,23 @@ class Body:
         sway_gain = self.amplitude * step_gain
         beat = self.tempo * t / 60.0
         circle_phase = 2.0 * np.pi * beat / HIP_CIRCLE_BEATS
-        step_left, step_right, lift_left, lift_right, weight_side = self._kaholo(beat)
+        if self.motion == "sway":  # feet planted, the weight rocking side to side, no circle
+            step_left = step_right = lift_left = lift_right = 0.0 * beat
+            weight_side = np.sin(2.0 * np.pi * beat / SWAY_BEATS)
+            circle_phase = 0.0 * beat
+            circle = 0.0
+        else:
+            step_left, step_right, lift_left, lift_right, weight_side = self._kaholo(beat)
+            circle = 1.0
 
         hip_x = HIP_JOINT_LOCAL[0]
         foot_target = np.array([
             [hip_x - step_gain * STEP_LENGTH * step_left, ANKLE_HEIGHT + step_gain * FOOT_LIFT * lift_left, 0],
             [-hip_x - step_gain * STEP_LENGTH * step_right, ANKLE_HEIGHT + step_gain * FOOT_LIFT * lift_right, 0],
         ])
-        pelvis_shift_x = sway_gain * (HIP_SWAY * weight_side + HIP_CIRCLE_RADIUS * np.cos(circle_phase))
-        pelvis_shift_z = sway_gain * HIP_CIRCLE_RADIUS * np.sin(circle_phase)
+        pelvis_shift_x = sway_gain * (HIP_SWAY * weight_side
+                                      + circle * HIP_CIRCLE_RADIUS * np.cos(circle_phase))
+        pelvis_shift_z = sway_gain * circle * HIP_CIRCLE_RADIUS * np.sin(circle_phase)
         pelvis_dip = PELVIS_DIP * 0.5 * (1.0 - np.cos(2.0 * np.pi * beat))
         pelvis_sink = sway_gain * self.amplitude * (PELVIS_SINK + pelvis_dip)
         pelvis_position = np.array([

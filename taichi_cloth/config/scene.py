@@ -153,8 +153,8 @@ class ClothConfig:
 
 @dataclass(frozen=True)
 class BodyConfig:
-    motion: str = setting("still", "str", choices=("hula", "twirl", "still"),
-                          doc="twirl: spins on the spot and stops (body/twirl.py)")
+    motion: str = setting("still", "str", choices=("hula", "sway", "twirl", "still"),
+                          doc="sway: rocks side to side, feet planted; twirl: spins and stops")
     tempo: float = setting(90.0, "float", low=0.0, low_inclusive=False, high=400.0,
                            doc="beats per minute")
     amplitude: float = setting(1.0, "float", low=0.0, high=3.0, doc="scale of sway and circles; twirl: turns")
