@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 
 from taichi_cloth.config.materials import PRESETS
-from taichi_cloth.config.scene import (MESH_FORMATS, SCENES_DIR, load_scene,
-                                       shipped_scene_names)
+from taichi_cloth.config.scene import SCENES_DIR, load_scene, shipped_scene_names
+from taichi_cloth.config.tables import MESH_FORMATS
 from taichi_cloth.errors import InputError, UnstableError
 from taichi_cloth.flags import choice_list
 from taichi_cloth.output.budget import RunLimits

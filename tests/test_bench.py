@@ -14,7 +14,7 @@ from taichi_cloth.physics.packed_grid import PACKED_PARTICLE_MINIMUM
 from taichi_cloth.cloth.garment import build_garment
 from taichi_cloth.config.materials import PRESETS
 from taichi_cloth.physics.model import Model
-from taichi_cloth.config.scene import ClothConfig
+from taichi_cloth.config.tables import ClothConfig
 
 import taichi as ti
 from systems import assemble

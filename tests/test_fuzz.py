@@ -11,8 +11,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 
 from taichi_cloth.cli import main
-from taichi_cloth.config.scene import (BodyConfig, ClothConfig, MaterialOverrides, OutputConfig,
-                                       RenderConfig, SceneInfo, SimulationConfig, load_scene)
+from taichi_cloth.config.scene import load_scene
+from taichi_cloth.config.tables import (BodyConfig, ClothConfig, MaterialOverrides, OutputConfig,
+                                        RenderConfig, SceneInfo, SimulationConfig)
 from taichi_cloth.effects import EFFECTS
 from taichi_cloth.errors import InputError
 from taichi_cloth.output.checkpoint import (CHECKPOINT_NAME, Checkpoint, load_checkpoint,

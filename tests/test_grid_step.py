@@ -17,7 +17,7 @@ from taichi_cloth.effects.drag import Drag, DragSettings
 from taichi_cloth.effects.gravity import Gravity, GravitySettings
 from taichi_cloth.cloth.garment import build_garment
 from taichi_cloth.physics.model import Model
-from taichi_cloth.config.scene import ClothConfig
+from taichi_cloth.config.tables import ClothConfig
 
 FLOOR_Y = 0.55  # m: the projection below holds the hem above it
 STEPS, DT = 120, 5e-4  # substeps of the runs, and their length [s]

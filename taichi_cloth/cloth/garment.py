@@ -20,7 +20,7 @@ from taichi_cloth.errors import InputError
 from taichi_cloth.cloth.topology import (grid_springs, grid_triangles, hinge_stencils,
                                           lumped_mass, triangle_edges)
 from taichi_cloth.config.materials import Material, spring_constants
-from taichi_cloth.config.scene import ClothConfig
+from taichi_cloth.config.tables import ClothConfig
 
 
 @dataclass(frozen=True)

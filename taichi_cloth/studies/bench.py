@@ -34,7 +34,8 @@ from taichi_cloth.physics.integrators import INTEGRATORS, make_integrator
 from taichi_cloth.config.materials import Material
 from taichi_cloth.physics.model import Model
 from taichi_cloth.runtime import start_taichi
-from taichi_cloth.config.scene import ClothConfig, load_scene
+from taichi_cloth.config.scene import load_scene
+from taichi_cloth.config.tables import ClothConfig
 from taichi_cloth.physics.control import Control
 from taichi_cloth.physics.packed_grid import packed_grid_for
 from taichi_cloth.studies.bench_scene import (bench_effects, bench_passes, bench_scene_integrators,
