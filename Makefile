@@ -24,8 +24,13 @@ simulate: setup
 render: setup
 	$(PY) -m taichi_cloth render $(SCENE) $(ARGS)
 
+# the last run of the scene drawn again from its cache when there is one (and no ARGS), else a run
 video: setup
-	$(PY) -m taichi_cloth render $(SCENE) --video mp4 $(ARGS)
+	if [ -z "$(ARGS)" ] && [ -f output/$(SCENE)/cache/scene.json ]; then \
+		$(PY) -m taichi_cloth render --from-cache output/$(SCENE) --video mp4; \
+	else \
+		$(PY) -m taichi_cloth render $(SCENE) --video mp4 $(ARGS); \
+	fi
 
 compare: setup
 	$(PY) -m taichi_cloth compare $(SCENE) $(ARGS)

@@ -39,8 +39,8 @@ def add_common_arguments(parser: argparse.ArgumentParser, out_help: str, set_hel
     parser.add_argument("--quiet", action="store_true", help="no progress or summary")
 
 
-def add_scene_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("scene", metavar="SCENE",
+def add_scene_arguments(parser: argparse.ArgumentParser, optional_scene: bool = False) -> None:
+    parser.add_argument("scene", metavar="SCENE", nargs="?" if optional_scene else None,
                         help="a scene name in scenes/ (e.g. hula) or a path to a .toml file")
     parser.add_argument("--frames", type=int, help="number of frames (default: duration × fps)")
     add_common_arguments(parser, "output folder (default: output/<scene>)",
@@ -109,7 +109,10 @@ def build_parser() -> argparse.ArgumentParser:
     add_mesh_arguments(simulate)
     render = commands.add_parser("render", help="simulate and write PNG frames (headless GGUI), "
                                                 "a video and meshes when asked")
-    add_scene_arguments(render)
+    add_scene_arguments(render, optional_scene=True)
+    render.add_argument("--from-cache", metavar="DIR",
+                        help="draw the frames (and --video) of the run cached in DIR/cache "
+                             "instead of simulating (no SCENE; --out defaults to DIR)")
     render.add_argument("--width", type=int, help="frame width in pixels (default: render.width)")
     render.add_argument("--height", type=int,
                         help="frame height in pixels (default: render.height)")
@@ -238,6 +241,23 @@ def list_materials() -> int:
     return 0
 
 
+def render_cached(args) -> int:
+    """``render --from-cache DIR``: the cached run's frames drawn again (output/replay.py)."""
+    from taichi_cloth.output.replay import render_from_cache
+    given = [flag for flag, value in (("SCENE", args.scene), ("--set", args.overrides),
+                                      ("--frames", args.frames), ("--resume", args.resume),
+                                      ("--meshes", args.meshes), ("--arch", args.arch))
+             if value]
+    if given:
+        raise InputError(f"--from-cache: draws the cached run as it was; {', '.join(given)} "
+                         f"cannot change it")
+    for value, flag in ((args.width, "--width"), (args.height, "--height")):
+        if value is not None:
+            check_size(value, flag)
+    return render_from_cache(Path(args.from_cache), Path(args.out) if args.out else None,
+                             (args.width, args.height), args.video, args.quiet)
+
+
 def run_limits(args) -> RunLimits:
     """--max-hours and --max-memory, checked."""
     if not (args.max_hours > 0 and math.isfinite(args.max_hours)):
@@ -267,7 +287,11 @@ def run_command(args) -> int:
             return simulate(args.scene, args.overrides, args.frames, args.out,
                             args.arch, args.quiet, args.meshes, args.body_meshes,
                             args.resume, run_limits(args))
+        if args.command == "render" and args.from_cache is not None:
+            return render_cached(args)
         if args.command == "render":
+            if args.scene is None:
+                raise InputError("render: needs a SCENE, or --from-cache DIR")
             return render(args.scene, args.overrides, args.frames, args.out, args.arch,
                           args.quiet, args.width, args.height, args.video, args.meshes,
                           args.body_meshes, args.resume, run_limits(args))

@@ -97,6 +97,34 @@ def test_render_leaves_no_imgui_ini_and_no_temporary_file(hula):
     assert "render" in __import__("json").loads((out / "stats.json").read_text())["wall_seconds"]
 
 
+def test_render_from_the_cache_draws_the_same_frames_without_simulating(hula, tmp_path,
+                                                                         monkeypatch):
+    """`render --from-cache` on the run's folder: every PNG byte for byte the run's own, and the
+    video with every frame, while no Simulation is built."""
+    from taichi_cloth.physics import simulation
+    monkeypatch.setattr(simulation.Simulation, "__init__", None)  # building one would fail
+    out = tmp_path / "again"
+    assert cli.main(["render", "--from-cache", str(hula[0]), "--out", str(out), "--width",
+                     str(WIDTH), "--height", str(HEIGHT), "--video", "mp4", "--quiet"]) == 0
+    for k in range(WRITTEN):
+        name = f"frame_{k:05d}.png"
+        assert (out / "frames" / name).read_bytes() == (hula[0] / "frames" / name).read_bytes()
+    assert imageio.v2.get_reader(out / "hula.mp4").count_frames() == WRITTEN
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["render", "--from-cache", "DIR", "hula"], "SCENE"),
+    (["render", "--from-cache", "DIR", "--set", "cloth.material=silk"], "--set"),
+    (["render", "--from-cache", "/nonexistent/run"], "no simulation cache"),
+    (["render"], "--from-cache"),
+])
+def test_from_cache_misuse_is_one_line_exit_2(argv, words, hula, capsys):
+    argv = [str(hula[0]) if word == "DIR" else word for word in argv]
+    assert cli.main(argv) == 2
+    error = capsys.readouterr().err.strip()
+    assert words in error and "\n" not in error
+
+
 def test_missing_vulkan_exits_2_naming_the_packages(tmp_path):
     environment = dict(os.environ, VK_ICD_FILENAMES=str(tmp_path / "none.json"),
                        VK_DRIVER_FILES=str(tmp_path / "none.json"))

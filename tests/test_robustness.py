@@ -11,6 +11,7 @@ import os
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 from taichi_cloth.cli import main
@@ -151,6 +152,12 @@ def test_interrupted_run_keeps_its_frames_and_resumes_to_the_same_result(tmp_pat
     assert not (stopped / "checkpoint.npz").exists()
     for name in ("cloth.pvd", "cloth_00001.vtu", "cloth_00005.vtu"):  # the series made whole
         assert (stopped / "meshes" / name).read_bytes() == (whole / "meshes" / name).read_bytes()
+    for frame in range(6):  # and the simulation cache: every frame, as the whole run's
+        for path in (stopped, whole):
+            assert (path / "cache" / f"frame_{frame:05d}.npz").is_file()
+        with np.load(stopped / "cache" / f"frame_{frame:05d}.npz") as resumed_frame, \
+                np.load(whole / "cache" / f"frame_{frame:05d}.npz") as whole_frame:
+            np.testing.assert_array_equal(resumed_frame["positions"], whole_frame["positions"])
 
 
 def test_resume_refuses_a_checkpoint_of_other_settings(tmp_path, monkeypatch, capsys):
@@ -158,10 +165,10 @@ def test_resume_refuses_a_checkpoint_of_other_settings(tmp_path, monkeypatch, ca
     with monkeypatch.context() as patch:
         patch.setattr(Simulation, "measure", interrupt_at(1))
         assert run_cli(argv) == 130
-    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    before = {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()}
     assert run_cli(argv + ["--set", "cloth.material=silk", "--resume"]) == 2
     assert "other scene settings" in capsys.readouterr().err
-    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
+    assert {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()} == before
 
 
 def test_serial_launches_are_bounded_so_interrupts_are_honoured():

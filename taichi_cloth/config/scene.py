@@ -8,6 +8,7 @@ suggested), a wrong type or an impossible value raises ``InputError`` naming the
 ``--set`` flag) and the dotted key. Units are SI, angles in degrees, y is up.
 """
 
+import copy
 import dataclasses
 import difflib
 import tomllib
@@ -41,6 +42,8 @@ class Scene:
     body: BodyConfig | None
     render: RenderConfig
     output: OutputConfig
+    document: dict = dataclasses.field(default_factory=dict, compare=False)  # the TOML tables
+    # after the overrides, from which ``scene_from_document`` builds this scene again
 
     @property
     def name(self) -> str:
@@ -161,7 +164,15 @@ def load_scene(name_or_path: str, overrides: tuple[str, ...] = ()) -> Scene:
         parts, value = parse_override(text)
         apply_override(raw, parts, value)
         overridden.append(".".join(parts))
-    ctx = SourceContext(str(path), overridden)
+    return scene_from_document(path, raw, overridden)
+
+
+def scene_from_document(path: Path, raw: dict, overridden: list[str] = ()) -> Scene:
+    """The validated scene of a TOML document ``raw`` (the file's tables after the overrides of
+    the dotted keys ``overridden``) read from ``path`` (relative paths in it, such as a
+    texture's, are relative to that file). Raises ``InputError`` on any bad input."""
+    path = Path(path)
+    ctx = SourceContext(str(path), list(overridden))
     for section in raw:
         if section not in SECTIONS:
             close = difflib.get_close_matches(section, SECTIONS, n=1)
@@ -199,6 +210,7 @@ def load_scene(name_or_path: str, overrides: tuple[str, ...] = ()) -> Scene:
         body=body,
         render=build_table(ctx, RenderConfig, raw.get("render", {}), "render"),
         output=build_table(ctx, OutputConfig, raw.get("output", {}), "output"),
+        document=copy.deepcopy(raw),
     )
     for name in scene.effects:
         if EFFECT_BY_NAME[name].needs_body and scene.body is None:

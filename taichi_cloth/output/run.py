@@ -20,6 +20,7 @@ from taichi_cloth.output.checkpoint import (Checkpoint, load_checkpoint, outputs
 from taichi_cloth.errors import InputError, UnstableError
 from taichi_cloth.output.files import copy_file, read_png, write_json, write_png
 from taichi_cloth.output.budget import RunLimits, check_memory, check_time
+from taichi_cloth.output.cache import CacheWriter
 from taichi_cloth.output.folder import OwnedFolder
 from taichi_cloth.output.meshes import MeshSeries, seam_split, write_material
 from taichi_cloth.output.video import video_writer
@@ -182,6 +183,7 @@ def run_in_folder(scene: Scene, frame_count: int, folder: OwnedFolder, quiet: bo
                 for frame in range(first_frame):
                     append_video(read_png(directory / FRAME_DIR / f"frame_{frame:05d}.png"))
         series = mesh_series(scene, simulation, directory, meshes, body_meshes)
+        cache = CacheWriter(directory, scene, simulation.model.particle_count)
         progress = stack.enter_context(Progress(scene.name, frame_count + 1 - first_frame, quiet))
         seconds = {"render": 0.0, "export": 0.0}
 
@@ -196,6 +198,8 @@ def run_in_folder(scene: Scene, frame_count: int, folder: OwnedFolder, quiet: bo
             rendered = time.perf_counter()
             for mesh, points in series:
                 mesh.append(frame, t, points(t))
+            cache.append(frame, t, simulation.state_in.x.to_numpy(),
+                         simulation.state_in.v.to_numpy())
             seconds["render"] += rendered - started
             seconds["export"] += time.perf_counter() - rendered
             finished.update(frame=frame, snapshot=simulation.snapshot())
