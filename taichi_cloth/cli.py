@@ -12,7 +12,8 @@ from pathlib import Path
 import numpy as np
 
 from taichi_cloth.config.materials import PRESETS
-from taichi_cloth.config.scene import SCENES_DIR, load_scene, shipped_scene_names
+from taichi_cloth.config.scene import (SCENES_DIR, load_scene, resolved_document,
+                                       shipped_scene_names)
 from taichi_cloth.config.tables import MESH_FORMATS
 from taichi_cloth.errors import InputError, UnstableError
 from taichi_cloth.flags import choice_list
@@ -123,6 +124,13 @@ def build_parser() -> argparse.ArgumentParser:
         "compare", help="every integrator on one scene: error against a reference vs cost, "
                         "table, CSV, plots, side-by-side video")
     add_compare_arguments(compare)
+    show = commands.add_parser("show", help="print a scene as resolved (every key with its "
+                                            "default, the preset's fabric values, --set "
+                                            "applied) as TOML")
+    show.add_argument("scene", metavar="SCENE",
+                      help="a scene name in scenes/ (e.g. hula) or a path to a .toml file")
+    show.add_argument("--set", dest="overrides", action="append", default=[],
+                      metavar="KEY=VALUE", help="override a dotted scene key with a TOML value")
     commands.add_parser("scenes", help="list the shipped scenes, the hard cases (hard/...) and "
                                        "the textile lab's specimens (lab/...)")
     commands.add_parser("materials", help="list the fabric presets")
@@ -312,6 +320,11 @@ def run_command(args) -> int:
                                        args.specimens)
         if args.command == "scenes":
             return list_scenes()
+        if args.command == "show":
+            import tomli_w
+            scene = load_scene(args.scene, tuple(args.overrides))
+            sys.stdout.write(f"# {scene.path}, resolved\n{tomli_w.dumps(resolved_document(scene))}")
+            return 0
         if args.command == "materials":
             return list_materials()
     except (InputError, UnstableError) as error:

@@ -255,3 +255,34 @@ def check_precision_range(ctx: SourceContext, scene: Scene) -> None:
                 raise ctx.error(dotted, f"{value:g} is outside float32's range (magnitudes "
                                         f"{F32_TINY:.3g} to {F32_MAX:.3g}); use "
                                         f"simulation.precision = \"f64\" or a value in range")
+
+
+# the fabric values a [cloth.material] table can set (config.tables.MaterialOverrides)
+MATERIAL_KEYS = ("density", "stretch_stiffness", "stretch_stiffness_weft", "shear_stiffness",
+                 "bend_stiffness", "bend_stiffness_weft", "damping", "thickness")
+
+
+def resolved_document(scene: Scene) -> dict:
+    """The scene as a TOML document with every key spelled out (defaults, the preset's fabric
+    values, the overrides applied): loading it gives the same ``Scene`` (``show``). Keys
+    whose value is None (not set) are left out; tuples become lists."""
+    def table(settings) -> dict:
+        values = {}
+        for field in dataclasses.fields(settings):
+            value = getattr(settings, field.name)
+            if value is not None and not dataclasses.is_dataclass(value):
+                values[field.name] = list(value) if isinstance(value, tuple) else value
+        return values
+
+    material = scene.material
+    cloth = table(scene.cloth)
+    cloth["material"] = {"preset": scene.cloth.material.preset,
+                         **{key: getattr(material, key) for key in MATERIAL_KEYS
+                            if getattr(material, key) is not None}}  # None: as the warp
+    document = {"scene": table(scene.scene), "simulation": table(scene.simulation),
+                "cloth": cloth,
+                "effects": {name: table(settings) for name, settings in scene.effects.items()}}
+    if scene.body is not None:
+        document["body"] = table(scene.body)
+    document.update(render=table(scene.render), output=table(scene.output))
+    return document
