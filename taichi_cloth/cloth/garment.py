@@ -134,26 +134,28 @@ def skirt_positions(cloth: ClothConfig, waist_height: float) -> np.ndarray:
 
 def settling_ripple(garment: "Garment", folds: int = 8, amplitude: float = 0.01) -> np.ndarray:
     """A displacement (N, 3) [m] that lets a wrap-around garment (a skirt) buckle into
-    ``folds`` folds when it settles: amplitude·s²·sin(folds·θ) along the cone's outward normal
-    (radial on a straight skirt, vertical on a flat full circle skirt: the normal of the slant
-    (Δr, Δy) from waist to hem in the radial–vertical plane is (−Δy, Δr)/|(Δr, Δy)|), with s the
-    fraction of the way from the first row (the waist, s = 0) to the last (the hem, s = 1); zero
-    for other garments. A cone cut from flat fabric is an equilibrium, unstable but exact:
-    without a push it would stand as a cone."""
+    ``folds`` folds when it settles: amplitude·s²·sin(folds·θ) with s the fraction of the way
+    from the first row (the waist, s = 0) to the last (the hem, s = 1), radial about the
+    vertical axis, and on a cone flatter than 45° (a circle skirt) turned towards the vertical
+    by the cone's own slope, (Δr·ŷ − Δy·r̂)/|(Δr, Δy)| for the slant (Δr, Δy) from waist to
+    hem, so that a flat circle is pushed out of its plane; zero for other garments. A cone cut
+    from flat fabric is an equilibrium, unstable but exact: without a push it would stand."""
     if not garment.periodic:
         return np.zeros_like(garment.positions)
     columns, rows = garment.columns, garment.rows
     angle = 2 * np.pi * np.arange(columns) / columns
     fraction = np.linspace(0.0, 1.0, rows)
+    outward = np.stack([np.cos(angle), np.zeros(columns), np.sin(angle)], axis=1)
     grid = garment.positions.reshape(rows, columns, 3)
     slant = grid[-1] - grid[0]
-    outward = np.stack([np.cos(angle), np.zeros(columns), np.sin(angle)], axis=1)
-    radial_run = np.einsum("ck,ck->c", slant, outward)
-    drop = slant[:, 1]
-    normal = -drop[:, None] * outward + radial_run[:, None] * np.array([0.0, 1.0, 0.0])
-    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    radial_run, drop = np.einsum("ck,ck->c", slant, outward), -slant[:, 1]
+    direction = outward.copy()
+    flat = radial_run > drop  # flatter than 45°: push across the cone
+    direction[flat] = (drop[flat, None] * outward[flat]
+                       + radial_run[flat, None] * np.array([0.0, 1.0, 0.0]))
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
     size = amplitude * fraction[:, None] ** 2 * np.sin(folds * angle)[None, :]
-    return (size[:, :, None] * normal[None, :, :]).reshape(-1, 3)
+    return (size[:, :, None] * direction[None, :, :]).reshape(-1, 3)
 
 
 def disc_positions(cloth: ClothConfig) -> np.ndarray:
