@@ -31,18 +31,6 @@ def write_pc2(target: Path, frames: np.ndarray, start_frame: float) -> None:
         temporary.write_bytes(header + frames.tobytes())
 
 
-def read_pc2(path: Path) -> tuple[float, np.ndarray]:
-    """(start frame, points (S, V, 3)) of a PC2 file."""
-    data = Path(path).read_bytes()
-    if data[:12] != PC2_SIGNATURE:
-        raise ValueError(f"{path}: not a PC2 point cache")
-    version, count = np.frombuffer(data, "<i4", 2, 12)
-    start, _ = np.frombuffer(data, "<f4", 2, 20)
-    samples = int(np.frombuffer(data, "<i4", 1, 28)[0])
-    return float(start), np.frombuffer(data, "<f4", samples * count * 3, 32).reshape(
-        samples, count, 3)
-
-
 class PointCache:
     """The cloth's frames, gathered in memory and written whole by ``finish``."""
 

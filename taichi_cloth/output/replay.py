@@ -36,9 +36,8 @@ def render_from_cache(source: Path, out: Path | None, size: tuple, video: str | 
     body = BodyRig(scene).body if scene.body is not None else None
     waist = body.waist_height if scene.body is not None else None
     garment = build_garment(scene.cloth, scene.material, waist, scene.path)
-    _, positions = read_frame(source, frames[0], garment.particle_count)
-    field = ti.Vector.field(3, ti.f64 if positions.dtype.itemsize == 8 else ti.f32,
-                            garment.particle_count)
+    field = ti.Vector.field(3, ti.f64 if scene.simulation.precision == "f64" else ti.f32,
+                            garment.particle_count)  # the cache holds the run's precision
     with OwnedFolder(directory) as folder:
         with contextlib.ExitStack() as stack:
             renderer = stack.enter_context(Renderer(scene, garment, body, *size))
