@@ -8,6 +8,8 @@ forces, integrators, simulation); ``render``; ``output`` (frames, meshes, video,
 
 import os
 
+__version__ = "0.4.0"  # pyproject.toml reads it (setuptools dynamic version)
+
 # Taichi prints a banner on import; our commands print their own summary instead.
 os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "false")
 # Errors only: a missing backend's warnings (no libcuda, falling back) would add lines to our

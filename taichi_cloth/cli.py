@@ -100,6 +100,35 @@ def add_compare_arguments(parser: argparse.ArgumentParser) -> None:
                          "in f64 unless --set simulation.precision=f32")
 
 
+def add_executor_arguments(parser: argparse.ArgumentParser, default_workers: str) -> None:
+    """--workers and --cluster: where a batch of runs executes (studies/executors.py)."""
+    parser.add_argument("--workers", type=int, metavar="N",
+                        help=f"run N simulations side by side in local worker processes, one "
+                             f"Taichi thread each (1: in this process; default {default_workers})")
+    parser.add_argument("--cluster", metavar="ADDRESS",
+                        help="run on the Dask cluster whose scheduler is at ADDRESS (e.g. "
+                             "tcp://10.0.0.5:8786; needs the cluster extra, docs/scaling.md)")
+
+
+def add_sweep_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("scene", metavar="SCENE", nargs="?",
+                        help="a scene name in scenes/ or a path to a .toml file (or --plan)")
+    parser.add_argument("--grid", action="append", default=[], metavar="KEY=V1,V2,...",
+                        help="a scene key and its values, e.g. --grid cloth.material=silk,cotton "
+                             "(repeatable: every combination runs)")
+    parser.add_argument("--plan", metavar="FILE",
+                        help="a TOML file whose [sweep] table gives scene, set, frames and grid")
+    parser.add_argument("--frames", type=int, help="frames per run (default: the scene's)")
+    parser.add_argument("--resume", action="store_true",
+                        help="continue the sweep in --out: runs already finished are kept")
+    parser.add_argument("--out", help="output folder (default: output/sweep/<scene>)")
+    parser.add_argument("--set", dest="overrides", action="append", default=[],
+                        metavar="KEY=VALUE", help="override a scene key in every run "
+                                                  "(repeatable)")
+    parser.add_argument("--quiet", action="store_true", help="no progress or summary")
+    add_executor_arguments(parser, "the usable cores")
+
+
 def build_parser() -> argparse.ArgumentParser:
     console = Path(sys.argv[0]).name == CONSOLE_SCRIPT
     parser = ArgumentParser(prog=CONSOLE_SCRIPT if console else "python -m taichi_cloth",
@@ -124,6 +153,11 @@ def build_parser() -> argparse.ArgumentParser:
         "compare", help="every integrator on one scene: error against a reference vs cost, "
                         "table, CSV, plots, side-by-side video")
     add_compare_arguments(compare)
+    add_executor_arguments(compare, "1")
+    sweep = commands.add_parser(
+        "sweep", help="many runs of a scene over a grid of --set values, locally or on a Dask "
+                      "cluster: a folder per run, a table and a contact sheet (docs/scaling.md)")
+    add_sweep_arguments(sweep)
     show = commands.add_parser("show", help="print a scene as resolved (every key with its "
                                             "default, the preset's fabric values, --set "
                                             "applied) as TOML")
@@ -307,7 +341,11 @@ def run_command(args) -> int:
             from taichi_cloth.studies.compare import compare
             return compare(args.scene, args.overrides, args.integrators, args.dts, args.duration,
                            args.out, args.arch, args.quiet, args.reference_dt, args.video_dt,
-                           not args.no_video)
+                           not args.no_video, args.workers, args.cluster)
+        if args.command == "sweep":
+            from taichi_cloth.studies.sweep import sweep
+            return sweep(args.scene, args.grid, args.overrides, args.frames, args.out,
+                         args.workers, args.cluster, args.resume, args.plan, args.quiet)
         if args.command == "bench":
             from taichi_cloth.studies.bench import bench_command
             return bench_command(args.sizes, args.integrators, args.scene, args.json,

@@ -15,16 +15,25 @@ def taichi_started() -> bool:
     return ti.lang.impl.get_runtime().prog is not None
 
 
-def start_taichi(arch: str = "cpu", kernel_profiler: bool = False) -> None:
+def start_taichi(arch: str = "cpu", kernel_profiler: bool = False,
+                 threads: int | None = None) -> None:
     """``ti.init`` on ``arch`` unless this process already started Taichi (a test session
     shares one runtime; ``ti.init`` again would drop every field and compiled kernel).
-    kernel_profiler: time every kernel (``ti.profiler``; it slows each launch)."""
+    kernel_profiler: time every kernel (``ti.profiler``; it slows each launch); threads: the
+    CPU backend's thread count (None: one per core; a sweep's worker takes one, so that runs
+    side by side do not compete for cores and their timings stay comparable)."""
     if taichi_started():
         return
+    options = {} if threads is None else {"cpu_max_num_threads": threads}
     with contextlib.redirect_stdout(io.StringIO()):  # ti.init prints "Starting on arch=..."
-        ti.init(arch=ARCHES[arch], random_seed=0, kernel_profiler=kernel_profiler)
+        ti.init(arch=ARCHES[arch], random_seed=0, kernel_profiler=kernel_profiler, **options)
     if arch != "cpu" and ti.lang.impl.current_cfg().arch == ti.cpu:
         raise InputError(f"--arch {arch}: no {arch} device found (Taichi fell back to the CPU)")
+
+
+def taichi_threads() -> int:
+    """The started runtime's CPU thread count."""
+    return ti.lang.impl.current_cfg().cpu_max_num_threads
 
 
 def runs_on_cpu() -> bool:

@@ -19,6 +19,34 @@ from taichi_cloth.physics.rig import BodyRig
 from taichi_cloth.runtime import start_taichi
 
 
+def cached_run(source: Path):
+    """(scene, frames, garment, body or None) of the run cached under ``source``: its scene, the
+    garment's rest mesh and the body rebuilt from the cached document."""
+    scene, frames = read_cache(source)
+    start_taichi("cpu")
+    body = BodyRig(scene).body if scene.body is not None else None
+    waist = body.waist_height if scene.body is not None else None
+    return scene, frames, build_garment(scene.cloth, scene.material, waist, scene.path), body
+
+
+def position_field(scene, garment) -> ti.Field:
+    """A field for the cached positions, in the run's precision (what the run drew)."""
+    return ti.Vector.field(3, ti.f64 if scene.simulation.precision == "f64" else ti.f32,
+                           garment.particle_count)
+
+
+def draw_cached_frame(source: Path, frame: int, size: tuple[int, int]):
+    """One cached frame of the run under ``source`` drawn at ``size`` (width, height) [pixels]:
+    an (H, W, 3) uint8 image (a sweep's thumbnail)."""
+    from taichi_cloth.render.renderer import Renderer
+    scene, _, garment, body = cached_run(source)
+    field = position_field(scene, garment)
+    with Renderer(scene, garment, body, *size) as renderer:
+        t, positions = read_frame(source, frame, garment.particle_count)
+        field.from_numpy(positions)
+        return renderer.draw(field, t)
+
+
 def render_from_cache(source: Path, out: Path | None, size: tuple, video: str | None,
                       quiet: bool) -> int:
     """Draw every frame cached under ``source`` into ``out`` (default: ``source``) at ``size``
@@ -27,17 +55,12 @@ def render_from_cache(source: Path, out: Path | None, size: tuple, video: str | 
     meshes); frames are replaced."""
     from taichi_cloth.render.renderer import Renderer
     source = Path(source)
-    scene, frames = read_cache(source)
+    scene, frames, garment, body = cached_run(source)
     directory = source if out is None else Path(out)
     check_writable(directory, "--out")
     size = (size[0] or scene.render.width, size[1] or scene.render.height)
     video = scene.output.video if video is None else video
-    start_taichi("cpu")
-    body = BodyRig(scene).body if scene.body is not None else None
-    waist = body.waist_height if scene.body is not None else None
-    garment = build_garment(scene.cloth, scene.material, waist, scene.path)
-    field = ti.Vector.field(3, ti.f64 if scene.simulation.precision == "f64" else ti.f32,
-                            garment.particle_count)  # the cache holds the run's precision
+    field = position_field(scene, garment)
     with OwnedFolder(directory) as folder:
         with contextlib.ExitStack() as stack:
             renderer = stack.enter_context(Renderer(scene, garment, body, *size))

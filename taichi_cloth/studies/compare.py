@@ -25,19 +25,20 @@ Runs use double precision unless ``--set simulation.precision=f32`` says otherwi
 precision floors position errors near 1e-7 m, which hides RK4's order). One ``Simulation`` per
 integrator serves every dt: between runs its state is reset to the rest state and its time step
 replaced, so kernels compile once per integrator, not once per run.
+The reference and each integrator's runs are jobs for an executor (``--workers``,
+``--cluster``; ``executors``): by default one after another in this process. Every worker,
+this process included, runs Taichi on one thread, so that costs measured side by side stay
+comparable; ``summary.json`` says which machines ran how many workers.
 
 Outputs (``output/compare/<scene>/``): ``results.csv``, ``summary.json``, ``report.md``, plots
 (``compare_plots``) and a labelled side-by-side video and contact sheet (``compare_video``).
 """
 
+import functools
 import math
-import os
-import platform
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import taichi as ti
 
 from taichi_cloth.output.run import OUTPUT_ROOT, check_writable, safe_name
 from taichi_cloth.errors import InputError, UnstableError
@@ -46,14 +47,15 @@ from taichi_cloth.output.files import write_csv, write_json
 from taichi_cloth.physics.integrators import INTEGRATORS
 from taichi_cloth.output.progress import Progress
 from taichi_cloth.config.scene import load_scene
-from taichi_cloth.physics.simulation import RunRecord, Simulation
 from taichi_cloth.physics.timestep import IMPLICIT_FRAME_FRACTION, TimeStep, fixed_time_step
+from taichi_cloth.runtime import start_taichi
+from taichi_cloth.studies.machine import machine_description
+from taichi_cloth.studies.compare_runs import (TIMING_REPEATS, TIMING_SECONDS, IntegratorJob,
+                                               Run, Runner, integrator_runs)
+from taichi_cloth.studies.executors import WORKER_THREADS, Lost, make_executor
 
 REFERENCE_INTEGRATOR = "rk4"
 REFERENCE_REFINEMENT = 4  # reference dt = smallest swept dt / this (RK4: 256× more accurate)
-WARMUP_FRAMES = 2  # frames 0 and 1 launch every kernel variant a run uses
-TIMING_REPEATS = 5  # a short run is timed up to this many times, the fastest counts
-TIMING_SECONDS = 0.2  # ... while its repeats total less than this [s] of substeps
 DEFAULT_DURATION_CAP = 1.0  # s: default --duration is the scene's, at most this
 SWEEP_POINTS_MAX = 8  # default sweep: at most this many steps, spaced by a factor >= 2
 ORDER_FIT_POINTS = 3  # the order is fitted on this many smallest steps
@@ -110,126 +112,6 @@ def default_dts(limits: dict, frame_time: float) -> tuple[float, ...]:
     return tuple(upper / ratio ** k for k in range(count))
 
 
-@dataclass
-class Run:
-    """One run of one integrator at one step: per-frame measurements up to where it stopped.
-
-    positions: (K, N, 3) frame-end positions [m]; energy, kinetic_energy: (K,) [J]; times: (K,)
-    frame-end times [s]; blowup_time: end of the frame that failed [s] (None when stable);
-    blowup_positions: the state the guard rejected there [m], when it is still finite (it shows
-    how the run fails); compile_seconds, simulate_seconds: wall-clock [s]."""
-
-    integrator: str
-    time_step: TimeStep
-    stable: bool = True
-    blowup_time: float | None = None
-    blowup_positions: np.ndarray | None = None
-    compile_seconds: float = 0.0
-    simulate_seconds: float = 0.0
-    times: list = field(default_factory=list)
-    positions: list = field(default_factory=list)
-    energy: list = field(default_factory=list)
-    kinetic_energy: list = field(default_factory=list)
-    max_strain: float = 0.0
-    max_penetration: float = 0.0
-
-
-class Runner:
-    """The simulations of a comparison, one per (integrator, precision), each reused for every
-    dt: a run resets the state to rest and swaps in its step. Each is built with dt = "auto",
-    so the core's own step choice (``timestep``: ω_max, the springs' damping, the contacts)
-    predicts its integrator's stability limit."""
-
-    def __init__(self, scene_name: str, overrides: tuple):
-        """overrides: the scene's ``--set`` list (the precision default and duration included)."""
-        self.scene_name = scene_name
-        self.overrides = overrides
-        self.simulations = {}  # (integrator, precision or "") → (Simulation, rest State)
-        self.limits = {}  # integrator → predicted largest stable step [s] (inf: any, 0: none)
-        self.omega_max = None  # the cloth's highest angular frequency [rad/s], contact included
-
-    def _build(self, extra: list[str]) -> Simulation:
-        return Simulation.from_scene(self.scene_name, self.overrides + tuple(extra))
-
-    def simulation(self, integrator: str, precision: str = "") -> tuple[Simulation, object]:
-        """The simulation of ``integrator`` (``precision``: force "f64"/"f32", "" = scene's)."""
-        key = (integrator, precision)
-        if key not in self.simulations:
-            extra = [f"simulation.integrator={integrator}", "simulation.max_retries=0"]
-            if precision:
-                extra.append(f"simulation.precision={precision}")
-            try:
-                simulation = self._build(extra + ["simulation.dt=auto"])
-                bound = simulation.time_step.stable_dt
-                self.limits.setdefault(integrator, math.inf if bound is None else bound)
-                self.omega_max = simulation.time_step.omega_max
-            except InputError:  # "auto" finds no stable step: explicit Euler without dashpots
-                simulation = self._build(extra + ["simulation.dt=1.0"])
-                self.limits.setdefault(integrator, 0.0)
-            self.simulations[key] = (simulation, simulation.snapshot())
-        return self.simulations[key]
-
-    def run(self, integrator: str, time_step: TimeStep, progress: Progress, precision: str = "",
-            measured: bool = True) -> Run:
-        """The scene with ``integrator`` at ``time_step``. ``measured``: first a warm-up of
-        ``WARMUP_FRAMES`` frames; its wall time less what those frames cost in the measured run
-        is the compilation time; a short run is repeated (up to ``TIMING_REPEATS`` runs while they
-        total under ``TIMING_SECONDS``) and costs its fastest, as timeit does, so that scheduler
-        noise does not decide which integrator is cheaper. A run that blows up is returned
-        unstable (no cost), not raised."""
-        simulation, rest = self.simulation(integrator, precision)
-        frame_count = simulation.scene.frame_count
-        warmup = None
-        if measured:
-            warmup = self._simulate(simulation, rest, integrator, time_step,
-                                    min(WARMUP_FRAMES, frame_count))
-        run = warmup if warmup is not None and not warmup.stable else \
-            self._simulate(simulation, rest, integrator, time_step, frame_count, progress)
-        repeats, spent = 1, run.simulate_seconds
-        while measured and run.stable and repeats < TIMING_REPEATS and spent < TIMING_SECONDS:
-            again = self._simulate(simulation, rest, integrator, time_step, frame_count)
-            run.simulate_seconds = min(run.simulate_seconds, again.simulate_seconds)
-            repeats, spent = repeats + 1, spent + again.simulate_seconds
-        skipped = frame_count if run is warmup else frame_count + 1 - len(run.times)
-        for _ in range(skipped):  # the frames a blown-up run will not simulate
-            progress.update(run.blowup_time)
-        if warmup is not None and run is not warmup:
-            share = run.simulate_seconds * (len(warmup.times) - 1) / max(len(run.times) - 1, 1)
-            run.compile_seconds += max(warmup.compile_seconds + warmup.simulate_seconds - share,
-                                       0.0)
-        return run
-
-    @staticmethod
-    def _simulate(simulation: Simulation, rest, integrator: str, time_step: TimeStep,
-                  frame_count: int, progress: Progress | None = None) -> Run:
-        simulation.restore(rest)
-        simulation.set_time_step(time_step.dt, time_step.substeps_per_frame)
-        run = Run(integrator, time_step)
-
-        def on_frame(frame, metrics):
-            run.times.append(metrics.t)
-            run.positions.append(simulation.positions())
-            run.energy.append(metrics.kinetic_energy + metrics.potential_energy)
-            run.kinetic_energy.append(metrics.kinetic_energy)
-            run.max_strain = max(run.max_strain, metrics.max_strain)
-            run.max_penetration = max(run.max_penetration, metrics.max_penetration)
-            if progress is not None and frame > 0:
-                progress.update(metrics.t)
-
-        record = RunRecord()
-        try:
-            simulation.run(frame_count, on_frame, record)
-        except UnstableError as error:
-            run.stable = False
-            run.blowup_time = simulation.frame_time(error.frame)
-            rejected = simulation.positions()  # max_retries = 0: the frame was not rolled back
-            if np.isfinite(rejected).all():
-                run.blowup_positions = rejected
-        run.compile_seconds = record.wall_seconds["compile"]
-        run.simulate_seconds = record.wall_seconds["simulate"]
-        return run
-
-
 def trajectory_error(run: Run, reference: Run, free: np.ndarray) -> tuple[float, float]:
     """(RMS, max) distance [m] of the free particles from the reference over all frame ends."""
     distance = np.linalg.norm(np.stack(run.positions)[:, free]
@@ -248,20 +130,6 @@ def fitted_order(dts, errors, floor: float) -> dict | None:
         return None
     slope, _ = np.polyfit(np.log([dt for dt, _ in used]), np.log([e for _, e in used]), 1)
     return {"order": float(slope), "dts": [dt for dt, _ in used]}
-
-
-def machine_description() -> dict:
-    """The CPU model (/proc/cpuinfo), logical cores, the Taichi backend and versions."""
-    cpu = platform.processor() or "unknown"
-    cpuinfo = Path("/proc/cpuinfo")
-    if cpuinfo.exists():
-        models = [line.split(":", 1)[1].strip() for line in cpuinfo.read_text().splitlines()
-                  if line.startswith("model name")]
-        cpu = models[0] if models else cpu
-    return {"cpu": cpu, "cores": os.cpu_count(),
-            "taichi_arch": ti.lang.impl.current_cfg().arch.name,
-            "taichi": ".".join(map(str, ti.__version__)), "python": platform.python_version(),
-            "system": platform.platform()}
 
 
 def result_row(run: Run, reference: Run, free: np.ndarray, duration: float) -> dict:
@@ -317,8 +185,11 @@ def video_step(rows: list[dict], steps: list[TimeStep], names) -> TimeStep:
 def compare(scene_name: str, overrides: list[str], integrators: str | None = None,
             dts: str | None = None, duration: str | None = None, out: str | None = None,
             arch: str | None = None, quiet: bool = False, reference_dt: str | None = None,
-            video_dt: str | None = None, video: bool = True) -> int:
-    """The ``compare`` command: sweep, reference, CSV, summary, plots, report and video."""
+            video_dt: str | None = None, video: bool = True, workers: int | None = None,
+            cluster: str | None = None) -> int:
+    """The ``compare`` command: sweep, reference, CSV, summary, plots, report and video. The
+    reference and each integrator's runs are jobs for the executor of ``workers`` (default 1:
+    this process) or ``cluster`` (``executors``); Taichi runs on one thread in each."""
     from taichi_cloth.studies import compare_plots
     from taichi_cloth.studies import compare_report
     names = integrator_names(integrators)
@@ -332,6 +203,8 @@ def compare(scene_name: str, overrides: list[str], integrators: str | None = Non
     extra.append(f"scene.duration={seconds!r}")
     directory = Path(out) if out else OUTPUT_ROOT / "compare" / safe_name(scene.name)
     check_writable(directory, "--out")
+    executor = make_executor(1 if workers is None and cluster is None else workers, cluster)
+    start_taichi(scene.simulation.arch, threads=WORKER_THREADS)
 
     runner = Runner(scene_name, tuple(extra))
     for name in names:  # each integrator's simulation, and its predicted stability limit
@@ -346,14 +219,30 @@ def compare(scene_name: str, overrides: list[str], integrators: str | None = Non
         fixed_time_step(video_seconds, frame_time).dt not in [s.dt for s in steps]
     run_count = 1 + len(names) * (len(steps) + extra_video)
     with Progress(f"compare {scene.name}", run_count * scene.frame_count, quiet) as progress:
-        reference = runner.run(REFERENCE_INTEGRATOR, reference_step, progress, "f64",
-                               measured=False)
+        jobs = [IntegratorJob(scene_name, tuple(extra), REFERENCE_INTEGRATOR, (reference_step,),
+                              "f64", measured=False)]
+        jobs += [IntegratorJob(scene_name, tuple(extra), name, tuple(steps)) for name in names]
+        in_process = executor.kind == "serial"
+        function = functools.partial(integrator_runs, runner=runner, progress=progress) \
+            if in_process else integrator_runs
+        done = {}
+        try:
+            for job, outcome in executor.run(function, jobs):
+                if isinstance(outcome, Lost):
+                    raise InputError(f"compare: the {job.integrator} runs were lost: "
+                                     f"{outcome.reason}")
+                done[id(job)] = outcome
+                for _ in range(0 if in_process else len(outcome) * scene.frame_count):
+                    progress.update(scene.scene.duration)
+        finally:
+            executor.close()
+        reference = done[id(jobs[0])][0]
         if not reference.stable:
             raise UnstableError(f"the reference ({REFERENCE_INTEGRATOR}, f64, dt = "
                                 f"{reference_step.dt:.4g} s) blew up at t = "
                                 f"{reference.blowup_time:.3g} s; give a smaller --reference-dt",
                                 len(reference.times))
-        runs = [runner.run(name, step, progress) for name in names for step in steps]
+        runs = [run for job in jobs[1:] for run in done[id(job)]]
         simulated = scene.frame_count * frame_time
         free = ~simulation.garment.pinned
         rows = [result_row(run, reference, free, simulated) for run in runs]
@@ -379,7 +268,10 @@ def compare(scene_name: str, overrides: list[str], integrators: str | None = Non
                       "dt": {name: (runner.limits[name] if math.isfinite(runner.limits[name])
                                     else None) for name in names}},
         "orders": convergence_orders(rows, names, floor), "video_dt": shown.dt,
-        "machine": machine_description(), "results": rows}
+        "machine": machine_description(),
+        "executor": {"kind": executor.kind, "workers": executor.workers,
+                     "machines": executor.machines(), "threads_per_worker": WORKER_THREADS},
+        "results": rows}
     write_csv(directory / "results.csv", rows, CSV_COLUMNS)
     write_json(directory / "summary.json", summary)
     compare_plots.write_plots(directory, summary, runs, reference)

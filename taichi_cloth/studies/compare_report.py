@@ -101,6 +101,20 @@ def results_table(summary: dict) -> list[str]:
     return lines
 
 
+def executor_sentence(executor: dict | None) -> str:
+    """Where the runs ran, and whether several shared a machine (their costs then include that
+    contention)."""
+    if executor is None:
+        return "- **Runs**: one after another in one process."
+    shared = {host: count for host, count in executor["machines"].items() if count > 1}
+    where = ", ".join(f"{host} ({count})" for host, count in executor["machines"].items())
+    note = (f" Runs shared a machine ({', '.join(shared)}): their costs include the contention "
+            f"of {max(shared.values())} workers side by side, so compare them with care."
+            if shared else " One run at a time per machine.")
+    return (f"- **Runs**: {executor['kind']} executor, {executor['workers']} worker(s) on "
+            f"{where}, {executor['threads_per_worker']} Taichi thread each.{note}")
+
+
 def report_text(summary: dict) -> str:
     reference, machine, stability = summary["reference"], summary["machine"], summary["stability"]
     lines = [
@@ -114,6 +128,7 @@ def report_text(summary: dict) -> str:
         f"- **Machine**: {machine['cpu']}, {machine['cores']} logical cores; Taichi "
         f"{machine['taichi']} on arch {machine['taichi_arch']}; Python {machine['python']}; "
         f"{machine['system']}.",
+        executor_sentence(summary.get("executor")),
         f"- **Cloth**: highest angular frequency ω_max = {number(stability['omega_max'], 4)} "
         f"rad/s (contact included), Rayleigh damping time β = {stability['damping_time']:.3g} s "
         f"(explicit Euler is stable only for dt ≤ β, docs/physics.md).", "",
