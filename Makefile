@@ -1,5 +1,6 @@
 # taichi_cloth: every target sets up .venv from requirements*.txt on first use; setup also makes
-# sure a Vulkan driver is there for headless rendering (scripts/ensure-vulkan.sh).
+# sure a Vulkan driver is there for headless rendering and a virtual display for the viewer's
+# test (scripts/ensure-system.sh).
 PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
@@ -16,7 +17,7 @@ $(STAMP): requirements.txt requirements-test.txt
 	touch $(STAMP)
 
 setup: $(STAMP)
-	@sh scripts/ensure-vulkan.sh
+	@sh scripts/ensure-system.sh
 
 simulate: setup
 	$(PY) -m taichi_cloth simulate $(SCENE) $(ARGS)

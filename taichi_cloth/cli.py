@@ -3,7 +3,6 @@ and hands it to the command's module: ``output.run`` (simulate, render), ``studi
 ``studies.bench``; lists what ships."""
 
 import argparse
-import errno
 import math
 import signal
 import sys
@@ -18,6 +17,7 @@ from taichi_cloth.config.tables import MESH_FORMATS
 from taichi_cloth.errors import InputError, UnstableError
 from taichi_cloth.flags import choice_list
 from taichi_cloth.output.budget import RunLimits
+from taichi_cloth.output.files import PATH_ERRORS, file_system_message
 from taichi_cloth.output.run import CONSOLE_SCRIPT
 from taichi_cloth.runtime import ARCH_NAMES
 
@@ -154,6 +154,19 @@ def build_parser() -> argparse.ArgumentParser:
                         "table, CSV, plots, side-by-side video")
     add_compare_arguments(compare)
     add_executor_arguments(compare, "1")
+    view = commands.add_parser("view", help="an interactive window playing the scene (live) or "
+                                            "a cached run: play, pause, step, orbit, toggles")
+    view.add_argument("scene", metavar="SCENE", nargs="?",
+                      help="a scene name in scenes/ or a path to a .toml file")
+    view.add_argument("--from-cache", metavar="DIR", help="play the run cached in DIR/cache")
+    view.add_argument("--set", dest="overrides", action="append", default=[],
+                      metavar="KEY=VALUE", help="override a dotted scene key (repeatable)")
+    view.add_argument("--width", type=int, help="window width in pixels (default render.width)")
+    view.add_argument("--height", type=int, help="window height (default render.height)")
+    view.add_argument("--frames", type=int,
+                      help="play N frames, then stop (with --screenshot: for scripts)")
+    view.add_argument("--screenshot", metavar="PNG", help="save the last frame shown to PNG")
+    view.add_argument("--quiet", action="store_true", help="no status lines")
     sweep = commands.add_parser(
         "sweep", help="many runs of a scene over a grid of --set values, locally or on a Dask "
                       "cluster: a folder per run, a table and a contact sheet (docs/scaling.md)")
@@ -300,6 +313,21 @@ def render_cached(args) -> int:
                              (args.width, args.height), args.video, args.quiet)
 
 
+def view_command(args) -> int:
+    """``view SCENE`` or ``view --from-cache DIR`` (output/view.py)."""
+    from taichi_cloth.output.view import view
+    for value, flag in ((args.width, "--width"), (args.height, "--height")):
+        if value is not None:
+            check_size(value, flag)
+    if (args.scene is None) == (args.from_cache is None):
+        raise InputError("view: give a SCENE or --from-cache DIR (one of the two)")
+    if args.from_cache is not None and args.overrides:
+        raise InputError("--from-cache: plays the cached run as it was; --set cannot change it")
+    scene = load_scene(args.scene, tuple(args.overrides)) if args.scene is not None else None
+    return view(scene, args.from_cache, (args.width, args.height), args.frames, args.screenshot,
+                args.quiet)
+
+
 def run_limits(args) -> RunLimits:
     """--max-hours and --max-memory, checked."""
     if not (args.max_hours > 0 and math.isfinite(args.max_hours)):
@@ -342,6 +370,8 @@ def run_command(args) -> int:
             return compare(args.scene, args.overrides, args.integrators, args.dts, args.duration,
                            args.out, args.arch, args.quiet, args.reference_dt, args.video_dt,
                            not args.no_video, args.workers, args.cluster)
+        if args.command == "view":
+            return view_command(args)
         if args.command == "sweep":
             from taichi_cloth.studies.sweep import sweep
             return sweep(args.scene, args.grid, args.overrides, args.frames, args.out,
@@ -375,19 +405,3 @@ def run_command(args) -> int:
         sys.stderr.write(f"error: {file_system_message(error)}\n")
         return 2 if error.errno in PATH_ERRORS else 1
     return 1
-
-
-# errno values that mean the path given is wrong (exit 2); others (a full disk, I/O) exit 1
-PATH_ERRORS = {errno.ENOENT, errno.ENOTDIR, errno.EISDIR, errno.ENAMETOOLONG, errno.ELOOP,
-               errno.EACCES, errno.EPERM, errno.EEXIST, errno.EROFS}
-
-
-def file_system_message(error: OSError) -> str:
-    """``path: reason`` of a file-system error, on one line."""
-    where = error.filename if error.filename is not None else ""
-    reason = error.strerror or str(error)
-    text = f"{where}: {reason}" if where else reason
-    if error.errno == errno.ENOSPC:
-        text += " (the disk is full: the frames written so far are whole)"
-    return " ".join(text.split())
-

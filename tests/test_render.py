@@ -1,6 +1,6 @@
 """Headless rendering: hula frames, the texture on the skirt, the body, the video, imgui.ini, and
 the Vulkan message; the surfaces the renderer draws. Rendering needs a Vulkan driver: without one
-these tests skip, except in CI (CI=true), which installs it (scripts/ensure-vulkan.sh)."""
+these tests skip, except in CI (CI=true), which installs it (scripts/ensure-system.sh)."""
 
 import os
 import subprocess

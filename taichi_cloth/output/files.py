@@ -4,6 +4,7 @@ leaves only whole files. JSON documents, PNG frames, copies; videos (``output.vi
 (``output.meshes``) write through ``atomic_path`` too."""
 
 import csv
+import errno
 import io
 import json
 import os
@@ -70,3 +71,19 @@ def copy_file(source: Path, target: Path) -> None:
     """A byte-for-byte copy of ``source``, atomically."""
     with atomic_path(target) as temporary:
         shutil.copyfile(source, temporary)
+
+
+# errno values that mean the path given is wrong (exit 2); others (a full disk, I/O) exit 1
+PATH_ERRORS = {errno.ENOENT, errno.ENOTDIR, errno.EISDIR, errno.ENAMETOOLONG, errno.ELOOP,
+               errno.EACCES, errno.EPERM, errno.EEXIST, errno.EROFS}
+
+
+def file_system_message(error: OSError) -> str:
+    """``path: reason`` of a file-system error, on one line."""
+    where = error.filename if error.filename is not None else ""
+    reason = error.strerror or str(error)
+    text = f"{where}: {reason}" if where else reason
+    if error.errno == errno.ENOSPC:
+        text += " (the disk is full: the frames written so far are whole)"
+    return " ".join(text.split())
+

@@ -19,21 +19,25 @@ import taichi as ti
 
 from taichi_cloth.errors import InputError
 from taichi_cloth.config.scene import Scene
-from taichi_cloth.render.surfaces import BodySurface, ClothSurface, GroundSurface
+from taichi_cloth.render.surfaces import BodySurface, ClothEdges, ClothSurface, GroundSurface
 from taichi_cloth.render.texture import load_texture, sample_texture, texture_path
 
 VULKAN_PACKAGES = "libvulkan1 mesa-vulkan-drivers"
 FILL_FRACTION = 1.0 / 3.0  # fill light intensity relative to the key light
+WIRE_COLOR = (0.08, 0.08, 0.1)  # the wireframe's lines
 
 
-def open_window(width: int, height: int) -> ti.ui.Window:
-    """A hidden GGUI window; a missing Vulkan driver is bad input (exit 2) that names the fix."""
+def open_window(width: int, height: int, visible: bool = False,
+                title: str = "taichi_cloth") -> ti.ui.Window:
+    """A GGUI window, hidden unless ``visible`` (the interactive viewer); a missing Vulkan
+    driver is bad input (exit 2) that names the fix."""
     try:
-        return ti.ui.Window("taichi_cloth", (width, height), show_window=False)
+        return ti.ui.Window(title, (width, height), show_window=visible, vsync=visible)
     except RuntimeError as error:
-        raise InputError(f"render: no Vulkan device for headless rendering ({error}); install "
-                         f"the Debian packages {VULKAN_PACKAGES} (make setup does it as root)"
-                         ) from None
+        what = "view: cannot open a window" if visible else \
+            "render: no Vulkan device for headless rendering"
+        raise InputError(f"{what} ({error}); it needs a Vulkan driver: install the Debian "
+                         f"packages {VULKAN_PACKAGES} (make setup does it as root)") from None
 
 
 @contextlib.contextmanager
@@ -73,14 +77,18 @@ def illumination(normals: np.ndarray, points: np.ndarray, lights: list, ambient:
 class Renderer:
     """Draws one frame at a time of a scene's cloth and body into an RGB image."""
 
-    def __init__(self, scene: Scene, garment, body, width: int, height: int):
-        """garment: the simulation's ``Garment``; body: a ``body.Body`` or None."""
+    def __init__(self, scene: Scene, garment, body, width: int, height: int,
+                 visible: bool = False):
+        """garment: the simulation's ``Garment``; body: a ``body.Body`` or None; visible: an
+        on-screen window (``render/viewer.py``) instead of a hidden one."""
         config = scene.render
         self.config = config
         position, lookat = np.array(config.camera_position), np.array(config.camera_lookat)
         key, fill = light_positions(position, lookat)
         self.lights = [(key, config.light), (fill, config.light * FILL_FRACTION)]
         self.cloth = ClothSurface(garment, config.subdivision)
+        self.garment = garment
+        self.edges = None  # the wireframe's lines, made when first asked for
         image_path = texture_path(scene)
         if image_path is None:
             self.cloth.set_colors(np.broadcast_to(config.cloth_color, (self.cloth.vertex_count, 3)))
@@ -95,7 +103,8 @@ class Renderer:
             self.ground.shade(key, lambda normals, points: illumination(
                 normals, points, self.lights, config.ambient), config.background)
 
-        self.window = open_window(width, height)  # last: nothing after it can fail unclosed
+        # last: nothing after it can fail unclosed
+        self.window = open_window(width, height, visible, f"taichi_cloth: {scene.name}")
         self.canvas = self.window.get_canvas()
         self.scene_3d = self.window.get_scene()
         self.camera = ti.ui.Camera()
@@ -107,13 +116,22 @@ class Renderer:
     def draw(self, positions, t: float) -> np.ndarray:
         """The frame with the cloth at ``positions`` (the simulation's x field) and the body at
         time ``t`` [s], as an (height, width, 3) uint8 image."""
+        self.compose(positions, t)
+        image = self.window.get_image_buffer_as_numpy()
+        return np.round(np.clip(image[:, ::-1, :3].transpose(1, 0, 2), 0, 1) * 255).astype(np.uint8)
+
+    def compose(self, positions, t: float, show_body: bool = True,
+                wireframe: bool = False) -> None:
+        """Draw the scene into the window's canvas (``draw`` reads it back, the viewer shows
+        it): the cloth at ``positions``, the body at ``t`` [s] unless not ``show_body``, the
+        cloth's triangle edges over it when ``wireframe``."""
         self.cloth.update(positions)
         self.canvas.set_background_color(tuple(self.config.background))
         self.scene_3d.set_camera(self.camera)
         self.scene_3d.ambient_light((self.config.ambient,) * 3)
         for position, intensity in self.lights:
             self.scene_3d.point_light(tuple(position), (intensity,) * 3)
-        if self.body is not None:
+        if self.body is not None and show_body:
             self.body.update(t)
             self._mesh(self.body, two_sided=False)
             if self.ground is not None:
@@ -121,9 +139,13 @@ class Renderer:
         if self.ground is not None:
             self._mesh(self.ground, two_sided=False)
         self._mesh(self.cloth, two_sided=True)
+        if wireframe:
+            if self.edges is None:
+                self.edges = ClothEdges(self.garment)
+            self.edges.update(positions)
+            self.scene_3d.lines(self.edges.vertices, width=1.0, indices=self.edges.indices,
+                                color=WIRE_COLOR)
         self.canvas.scene(self.scene_3d)
-        image = self.window.get_image_buffer_as_numpy()
-        return np.round(np.clip(image[:, ::-1, :3].transpose(1, 0, 2), 0, 1) * 255).astype(np.uint8)
 
     def _mesh(self, surface, two_sided: bool) -> None:
         self.scene_3d.mesh(surface.vertices, indices=surface.indices, normals=surface.normals,

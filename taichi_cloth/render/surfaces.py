@@ -138,6 +138,23 @@ class ClothSurface(Surface):
             self.normals[i] = n / ti.max(n.norm(), 1e-12)
 
 
+@ti.data_oriented
+class ClothEdges:
+    """The simulation mesh's edges as lines between the particles (the viewer's wireframe: the
+    mesh the physics runs on, not the smoothed render mesh)."""
+
+    def __init__(self, garment: Garment):
+        edges = garment.edges
+        self.vertices = ti.Vector.field(3, ti.f32, garment.particle_count)
+        self.indices = ti.field(ti.i32, edges.size)
+        self.indices.from_numpy(edges.ravel().astype(np.int32))
+
+    @ti.kernel
+    def update(self, x: ti.template()):
+        for i in self.vertices:
+            self.vertices[i] = ti.cast(x[i], ti.f32)
+
+
 def capsule_template(segments: int = CAPSULE_SEGMENTS, rings: int = CAPSULE_RINGS):
     """Unit capsule: directions (V, 3) on the unit sphere (axis +z), end flags (V,) (0 at a,
     1 at b) and triangles (T, 3), as a periodic grid of latitude rows × ``segments``.
