@@ -301,7 +301,7 @@ def render_cached(args) -> int:
     from taichi_cloth.output.replay import render_from_cache
     given = [flag for flag, value in (("SCENE", args.scene), ("--set", args.overrides),
                                       ("--frames", args.frames), ("--resume", args.resume),
-                                      ("--meshes", args.meshes), ("--arch", args.arch))
+                                      ("--arch", args.arch))
              if value]
     if given:
         raise InputError(f"--from-cache: draws the cached run as it was; {', '.join(given)} "
@@ -310,7 +310,8 @@ def render_cached(args) -> int:
         if value is not None:
             check_size(value, flag)
     return render_from_cache(Path(args.from_cache), Path(args.out) if args.out else None,
-                             (args.width, args.height), args.video, args.quiet)
+                             (args.width, args.height), args.video, args.quiet,
+                             args.meshes or (), args.body_meshes)
 
 
 def view_command(args) -> int:

@@ -1,7 +1,6 @@
 """Cloth and body meshes per frame: OBJ with UVs and a material, PLY and VTU through meshio, and
 one XDMF time series per object (ParaView, Blender's importers)."""
 
-import io
 import re
 import xml.etree.ElementTree as ET
 from pathlib import Path
@@ -30,25 +29,32 @@ def seam_split(garment):
     return np.concatenate([np.arange(count), first_column]), uvs, triangles
 
 
-def write_obj(target: Path, points: np.ndarray, triangles: np.ndarray, uvs=None,
-              material: str = "") -> None:
-    """A Wavefront OBJ, atomically: v lines, vt lines when ``uvs`` (V, 2) are given (faces then
-    read ``f v/vt``: meshio's own writer leaves faces without them, so UVs are lost on import),
-    and ``mtllib <material>.mtl`` + ``usemtl <material>`` when ``material`` is named."""
-    text = io.StringIO()
-    text.write("# taichi_cloth\n")
-    if material:
-        text.write(f"mtllib {material}.mtl\nusemtl {material}\n")
-    np.savetxt(text, points, fmt="v %.6f %.6f %.6f")
-    faces = triangles + 1
-    if uvs is not None:
-        np.savetxt(text, uvs, fmt="vt %.6f %.6f")
-        faces = np.repeat(faces, 2, axis=1)
-        np.savetxt(text, faces, fmt="f %d/%d %d/%d %d/%d")
-    else:
-        np.savetxt(text, faces, fmt="f %d %d %d")
+def obj_lines(template: str, values: np.ndarray) -> str:
+    """One ``template`` line per row of ``values``, formatted in one go (a single %-format of
+    the repeated template: ~4× faster than ``numpy.savetxt``, the same text)."""
+    return (template * len(values)) % tuple(values.ravel().tolist())
+
+
+def obj_topology(triangles: np.ndarray, uvs=None) -> str:
+    """An OBJ's vt and f lines: faces ``f v/vt`` when ``uvs`` (V, 2) are given (meshio's own
+    writer leaves faces without them, so UVs are lost on import), else ``f v``. The same for
+    every frame of a series, so ``MeshSeries`` formats them once."""
+    faces = np.asarray(triangles) + 1
+    if uvs is None:
+        return obj_lines("f %d %d %d\n", faces)
+    return obj_lines("vt %.6f %.6f\n", np.asarray(uvs)) + \
+        obj_lines("f %d/%d %d/%d %d/%d\n", np.repeat(faces, 2, axis=1))
+
+
+def write_obj(target: Path, points: np.ndarray, topology: str, material: str = "") -> None:
+    """A Wavefront OBJ, atomically: v lines of ``points`` and the ``topology`` text
+    (``obj_topology``), with ``mtllib <material>.mtl`` + ``usemtl <material>`` when
+    ``material`` is named."""
+    header = "# taichi_cloth\n" + (f"mtllib {material}.mtl\nusemtl {material}\n" if material
+                                   else "")
     with atomic_path(target) as temporary:
-        temporary.write_text(text.getvalue(), encoding="utf-8")
+        temporary.write_text(header + obj_lines("v %.6f %.6f %.6f\n", np.asarray(points))
+                             + topology, encoding="utf-8")
 
 
 def write_material(target: Path, name: str, color, texture: str = "") -> None:
@@ -159,16 +165,17 @@ class MeshSeries:
             if "xdmf" in self.formats else None
         self.fps = fps
         self.appended = set()  # the frames this run wrote
+        if "obj" in self.formats:
+            self.obj_topology = obj_topology(*(uv_layout[2], uv_layout[1]) if uv_layout
+                                             else (self.triangles,))
 
     def append(self, frame: int, t: float, points: np.ndarray) -> None:
         """The meshes of ``frame`` at simulated time ``t`` [s], vertex positions ``points`` [m]."""
         stem = self.directory / f"{self.name}_{frame:05d}"
         for file_format in self.formats:
-            if file_format == "obj" and self.uv_layout is not None:
-                source, uvs, triangles = self.uv_layout
-                write_obj(stem.with_suffix(".obj"), points[source], triangles, uvs, self.material)
-            elif file_format == "obj":
-                write_obj(stem.with_suffix(".obj"), points, self.triangles)
+            if file_format == "obj":
+                shown = points[self.uv_layout[0]] if self.uv_layout is not None else points
+                write_obj(stem.with_suffix(".obj"), shown, self.obj_topology, self.material)
             elif file_format in ("ply", "vtu"):
                 write_meshio(stem.with_suffix(f".{file_format}"), points, self.triangles,
                              file_format)

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from taichi_cloth.output.files import atomic_path
-from taichi_cloth.output.meshes import write_obj
+from taichi_cloth.output.meshes import obj_topology, write_obj
 
 PC2_SIGNATURE = b"POINTCACHE2\0"
 
@@ -47,8 +47,8 @@ class PointCache:
         points = np.asarray(positions)[self.source]
         if self.first is None:
             self.first = frame
-            write_obj(self.directory / "cloth.obj", points, self.triangles, self.uvs,
-                      self.material)
+            write_obj(self.directory / "cloth.obj", points,
+                      obj_topology(self.triangles, self.uvs), self.material)
         self.frames.append(points.astype(np.float32))
 
     def finish(self) -> None:

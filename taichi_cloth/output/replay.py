@@ -6,10 +6,12 @@ For an f32 scene the PNG files are byte for byte those of the run that wrote the
 import contextlib
 from pathlib import Path
 
+import numpy as np
 import taichi as ti
 
 from taichi_cloth.cloth.garment import build_garment
 from taichi_cloth.output.cache import read_cache, read_frame
+from taichi_cloth.output.exports import mesh_series
 from taichi_cloth.output.files import write_png
 from taichi_cloth.output.folder import OwnedFolder
 from taichi_cloth.output.progress import Progress
@@ -48,11 +50,12 @@ def draw_cached_frame(source: Path, frame: int, size: tuple[int, int]):
 
 
 def render_from_cache(source: Path, out: Path | None, size: tuple, video: str | None,
-                      quiet: bool) -> int:
+                      quiet: bool, meshes=(), body_meshes: bool = False) -> int:
     """Draw every frame cached under ``source`` into ``out`` (default: ``source``) at ``size``
-    (width, height: None takes the scene's), with a video when ``video`` is "mp4" or "gif" (default: the
-    scene's ``output.video``). The folder keeps what the run wrote there (its cache, stats,
-    meshes); frames are replaced."""
+    (width, height: None takes the scene's), with a video when ``video`` is "mp4" or "gif"
+    (default: the scene's ``output.video``), and the ``meshes`` formats (and the body's with
+    ``body_meshes``) exported from the cached frames: the files the run itself would write. The
+    folder keeps what the run wrote there (its cache, stats); frames are replaced."""
     from taichi_cloth.render.renderer import Renderer
     source = Path(source)
     scene, frames, garment, body = cached_run(source)
@@ -67,6 +70,7 @@ def render_from_cache(source: Path, out: Path | None, size: tuple, video: str | 
             append_video = stack.enter_context(video_writer(
                 directory / f"{safe_name(scene.name)}.{video}", video, scene.scene.fps)) \
                 if video else None
+            series = mesh_series(scene, garment, body, directory, meshes, body_meshes)
             progress = stack.enter_context(Progress(scene.name, len(frames), quiet))
             for frame in frames:
                 t, positions = read_frame(source, frame, garment.particle_count)
@@ -75,7 +79,11 @@ def render_from_cache(source: Path, out: Path | None, size: tuple, video: str | 
                 write_png(directory / FRAME_DIR / f"frame_{frame:05d}.png", image)
                 if append_video is not None:
                     append_video(image)
+                for mesh, points in series:  # as the run does: its positions in float64
+                    mesh.append(frame, t, points(t, positions.astype(np.float64)))
                 progress.update(t)
+            for mesh, _ in series:
+                mesh.finish()
         folder.finish(resumed=True)
     if not quiet:
         print(f"{scene.name}: {len(frames)} frames drawn from the cache in {source} → "

@@ -18,11 +18,11 @@ import numpy as np
 from taichi_cloth.output.checkpoint import (Checkpoint, load_checkpoint, outputs_fingerprint,
                                             remove_checkpoint, save_checkpoint, scene_fingerprint)
 from taichi_cloth.errors import InputError, UnstableError
-from taichi_cloth.output.files import copy_file, read_png, write_json, write_png
+from taichi_cloth.output.files import read_png, write_json, write_png
 from taichi_cloth.output.budget import RunLimits, check_memory, check_time
 from taichi_cloth.output.cache import CacheWriter
 from taichi_cloth.output.folder import OwnedFolder
-from taichi_cloth.output.meshes import MeshSeries, seam_split, write_material
+from taichi_cloth.output.exports import mesh_series
 from taichi_cloth.output.video import video_writer
 from taichi_cloth.output.progress import Progress, announce
 from taichi_cloth.config.scene import Scene
@@ -30,7 +30,6 @@ from taichi_cloth.config.scene import Scene
 OUTPUT_ROOT = Path("output")
 NAME_LENGTH = 80  # characters of a scene's name in file names
 FRAME_DIR = "frames"  # PNG frames, inside the output folder
-MESH_DIR = "meshes"
 CONSOLE_SCRIPT = "taichi-cloth"  # pyproject.toml's command
 
 
@@ -65,48 +64,6 @@ def check_writable(directory: Path, flag: str) -> None:
     except OSError as error:
         raise InputError(f"{flag} {directory}: cannot write in {existing} "
                          f"({error.strerror})") from None
-
-
-def mesh_series(scene: Scene, simulation, directory: Path, formats, body_meshes: bool) -> list:
-    """(MeshSeries, points(t) → (V, 3) m) for the cloth and, if asked and present, the body."""
-    from taichi_cloth.render.texture import texture_path
-    if not formats:
-        return []
-    folder = directory / MESH_DIR
-    source, uvs, triangles = seam_split(simulation.garment)
-    image = texture_path(scene)
-    if "obj" in formats or "pc2" in formats:
-        if image is not None:
-            copy_file(image, folder / image.name)
-        write_material(folder / "cloth.mtl", "cloth", scene.render.cloth_color,
-                       image.name if image is not None else "")
-    uv_layout = (source, uvs * scene.render.texture_repeat, triangles)
-    cloth = MeshSeries(folder, "cloth", formats, simulation.garment.triangles, uv_layout,
-                       material=True, fps=scene.scene.fps)
-    series = [(cloth, lambda t: simulation.positions())]
-    body = simulation.body_rig.body if simulation.body_rig is not None else None
-    if "usd" in formats:
-        from taichi_cloth.output.usd import USD_FILE, UsdAnimation
-        if image is not None:
-            copy_file(image, folder / image.name)
-        series.append((UsdAnimation(folder / USD_FILE, uv_layout, scene.scene.fps,
-                                    scene.render.cloth_color,
-                                    image.name if image is not None else "", body),
-                       lambda t: simulation.positions()))
-    if "pc2" in formats:
-        from taichi_cloth.output.pointcache import PointCache
-        series.append((PointCache(folder, uv_layout, "cloth"), lambda t: simulation.positions()))
-    if body_meshes and simulation.body_rig is not None:
-        from taichi_cloth.render.surfaces import BodySurface
-        surface = BodySurface(simulation.body_rig.body)
-
-        def body_points(t):
-            surface.update(t)
-            return surface.points()
-
-        series.append((MeshSeries(folder, "body", formats, surface.triangles,
-                                  fps=scene.scene.fps), body_points))
-    return series
 
 
 def run_scene(scene: Scene, frame_count: int, directory: Path, quiet: bool,
@@ -171,18 +128,18 @@ def run_in_folder(scene: Scene, frame_count: int, folder: OwnedFolder, quiet: bo
                                  f"first)", quiet)
         settle(simulation, record)
     finished = {}  # the last whole frame: its index and host copies of its state
+    body = simulation.body_rig.body if simulation.body_rig is not None else None
     with contextlib.ExitStack() as stack:
         renderer = append_video = None
         if size is not None:
             from taichi_cloth.render.renderer import Renderer
-            body = simulation.body_rig.body if simulation.body_rig is not None else None
             renderer = stack.enter_context(Renderer(scene, simulation.garment, body, *size))
             if video:
                 append_video = stack.enter_context(video_writer(
                     directory / f"{safe_name(scene.name)}.{video}", video, scene.scene.fps))
                 for frame in range(first_frame):
                     append_video(read_png(directory / FRAME_DIR / f"frame_{frame:05d}.png"))
-        series = mesh_series(scene, simulation, directory, meshes, body_meshes)
+        series = mesh_series(scene, simulation.garment, body, directory, meshes, body_meshes)
         cache = CacheWriter(directory, scene, simulation.model.particle_count)
         progress = stack.enter_context(Progress(scene.name, frame_count + 1 - first_frame, quiet))
         seconds = {"render": 0.0, "export": 0.0}
@@ -196,8 +153,10 @@ def run_in_folder(scene: Scene, frame_count: int, folder: OwnedFolder, quiet: bo
                 if append_video is not None:
                     append_video(image)
             rendered = time.perf_counter()
+            if series:
+                positions = simulation.positions()
             for mesh, points in series:
-                mesh.append(frame, t, points(t))
+                mesh.append(frame, t, points(t, positions))
             cache.append(frame, t, simulation.state_in.x.to_numpy(),
                          simulation.state_in.v.to_numpy())
             seconds["render"] += rendered - started
