@@ -88,7 +88,7 @@ def test_undeclared_wind_is_not_compiled_and_declared_wind_acts():
     assert not any(isinstance(effect, Wind) for effect in calm.forces.effects)
     windy, windy_x = flag_positions()
     assert "wind" in windy.effect_names
-    assert np.abs(windy_x - calm_x).max() > 1e-3  # 4 m/s of wind moves the flag
+    assert np.abs(windy_x - calm_x).max() > 1e-3  # the breeze moves the flag
     zero, zero_x = flag_positions("effects.wind.strength=0")
     assert "wind" in zero.effect_names
     np.testing.assert_allclose(zero_x, calm_x, atol=1e-12)

@@ -225,6 +225,22 @@ def test_pins(name, pin, pinned):
     assert np.all(garment.positions[garment.pinned, 1] == top.max())  # pins are on the top row
 
 
+def test_a_flag_is_held_along_its_hoist_beside_its_pole():
+    """pin = "left-edge": the sheet's first column, every row; the flag scene's pole stands
+    just outside it, from the ground to above the flag."""
+    from taichi_cloth.physics.rig import BodyRig
+    scene, garment = garment_of("flag", "cloth.resolution=[5, 3]")
+    assert np.flatnonzero(garment.pinned).tolist() == [0, 5, 10]
+    np.testing.assert_allclose(garment.positions[garment.pinned, 0], -scene.cloth.size[0] / 2)
+    pole = BodyRig(scene).body
+    a, b = pole.pose(0.0).capsule_a[0], pole.pose(0.0).capsule_b[0]
+    np.testing.assert_allclose([a[1], b[1]], [0.0, 2.2])  # upright, from the ground
+    np.testing.assert_allclose(a[[0, 2]], b[[0, 2]])
+    gap = -scene.cloth.size[0] / 2 - a[0] - pole.capsule_radius[0]
+    assert 0.0 < gap < 0.01  # the hoist a few mm outside the pole's surface
+    assert b[1] > garment.positions[:, 1].max()
+
+
 @pytest.mark.parametrize("columns", [2, 4])
 def test_skirt_with_fewer_than_five_columns_is_refused(columns):
     """Four around would put a skip-one spring on top of the one across the seam, twice."""

@@ -175,6 +175,8 @@ def pinned_particles(cloth: ClothConfig, positions: np.ndarray) -> np.ndarray:
         pinned[:columns] = True
     elif cloth.pin == "top-edge":
         pinned[:columns * min(cloth.pin_rows, rows)] = True
+    elif cloth.pin == "left-edge":
+        pinned[::columns] = True
     elif cloth.pin == "corners":
         pinned[[0, columns - 1]] = True
     elif cloth.pin == "clamp":

@@ -92,8 +92,9 @@ class ClothConfig:
     material: MaterialOverrides = setting(MaterialOverrides(), "table", shorthand="preset",
                                           doc="a preset name, or a table of overrides")
     pin: str = setting("top-edge", "str",
-                       choices=("waist", "top-edge", "corners", "clamp", "none"),
-                       doc="clamp: a disc's particles within clamp_radius of its centre")
+                       choices=("waist", "top-edge", "left-edge", "corners", "clamp", "none"),
+                       doc="left-edge: a sheet's first column (a flag's hoist); clamp: a "
+                           "disc's particles within clamp_radius of its centre")
     pin_rows: int = setting(1, "int", low=1, high=4096,
                             doc="top-edge: rows held (2 clamp the edge's slope too)")
     clamp_radius: float = setting(0.09, "float", low=0.0, doc="disc, pin = \"clamp\": m")
@@ -144,8 +145,11 @@ class BodyConfig:
     tempo: float = setting(90.0, "float", low=0.0, low_inclusive=False, high=400.0,
                            doc="beats per minute")
     amplitude: float = setting(1.0, "float", low=0.0, high=3.0, doc="scale of sway and circles; twirl: turns")
-    capsules: str = setting("split", "str", choices=("split", "coarse", "bar", "ball"),
-                            doc="paper Fig. 4, Fig. 3, or one static bar or ball (draping)")
+    capsules: str = setting("split", "str", choices=("split", "coarse", "bar", "ball", "pole"),
+                            doc="paper Fig. 4, Fig. 3, or one static bar or ball (draping) or "
+                                "a flagpole")
+    offset: tuple = setting([0.0, 0.0, 0.0], "float_list", length=3,
+                            doc="bar, ball, pole: where the prop stands, moved from its place, m")
     scale: float = setting(1.0, "float", low=0.1, high=10.0, doc="body size relative to 1.6 m")
     ease_in: float = setting(1.0, "float", low=0.0, doc="seconds from rest to full motion")
 

@@ -14,7 +14,7 @@ import dataclasses
 import numpy as np
 
 from taichi_cloth.body.dancer import Body
-from taichi_cloth.body.props import Bar
+from taichi_cloth.body.props import PROPS, Bar
 from taichi_cloth.config.scene import Scene
 from taichi_cloth.physics.control import Control
 
@@ -28,8 +28,8 @@ class BodyRig:
 
     def __init__(self, scene: Scene):
         config = scene.body
-        if config.capsules in ("bar", "ball"):
-            self.body = Bar(config.capsules, config.scale)
+        if config.capsules in PROPS:
+            self.body = Bar(config.capsules, config.scale, config.offset)
         else:
             self.body = Body(config.motion, config.tempo, config.amplitude, config.capsules,
                              config.scale, config.ease_in)

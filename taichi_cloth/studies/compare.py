@@ -45,13 +45,13 @@ from taichi_cloth.errors import InputError, UnstableError
 from taichi_cloth.flags import choice_list, number_list
 from taichi_cloth.output.files import write_csv, write_json
 from taichi_cloth.physics.integrators import INTEGRATORS
-from taichi_cloth.output.progress import Progress
+from taichi_cloth.output.progress import Progress, announce
 from taichi_cloth.config.scene import load_scene
 from taichi_cloth.physics.timestep import IMPLICIT_FRAME_FRACTION, TimeStep, fixed_time_step
 from taichi_cloth.runtime import start_taichi
 from taichi_cloth.studies.machine import machine_description
 from taichi_cloth.studies.compare_runs import (TIMING_REPEATS, TIMING_SECONDS, IntegratorJob,
-                                               Run, Runner, integrator_runs)
+                                               Run, Runner, estimate_seconds, integrator_runs)
 from taichi_cloth.studies.executors import WORKER_THREADS, Lost, make_executor
 
 REFERENCE_INTEGRATOR = "rk4"
@@ -130,6 +130,15 @@ def fitted_order(dts, errors, floor: float) -> dict | None:
         return None
     slope, _ = np.polyfit(np.log([dt for dt, _ in used]), np.log([e for _, e in used]), 1)
     return {"order": float(slope), "dts": [dt for dt, _ in used]}
+
+
+def duration_text(seconds: float) -> str:
+    """``seconds`` as a person says it: 40 s, 3 min, 1.5 h."""
+    if seconds < 90:
+        return f"{seconds:.0f} s"
+    if seconds < 5400:
+        return f"{seconds / 60:.0f} min"
+    return f"{seconds / 3600:.1f} h"
 
 
 def result_row(run: Run, reference: Run, free: np.ndarray, duration: float) -> dict:
@@ -218,10 +227,14 @@ def compare(scene_name: str, overrides: list[str], integrators: str | None = Non
     extra_video = video and video_seconds is not None and \
         fixed_time_step(video_seconds, frame_time).dt not in [s.dt for s in steps]
     run_count = 1 + len(names) * (len(steps) + extra_video)
+    jobs = [IntegratorJob(scene_name, tuple(extra), REFERENCE_INTEGRATOR, (reference_step,),
+                          "f64", measured=False)]
+    jobs += [IntegratorJob(scene_name, tuple(extra), name, tuple(steps)) for name in names]
+    estimate = estimate_seconds(jobs, scene.frame_count, simulation.model.particle_count)
+    announce(f"compare {scene.name}", f"the reference and {len(names)} integrators × "
+                                      f"{len(steps)} steps: about {duration_text(estimate)} "
+                                      f"on one core of a 2-core CPU machine like CI's", quiet)
     with Progress(f"compare {scene.name}", run_count * scene.frame_count, quiet) as progress:
-        jobs = [IntegratorJob(scene_name, tuple(extra), REFERENCE_INTEGRATOR, (reference_step,),
-                              "f64", measured=False)]
-        jobs += [IntegratorJob(scene_name, tuple(extra), name, tuple(steps)) for name in names]
         in_process = executor.kind == "serial"
         function = functools.partial(integrator_runs, runner=runner, progress=progress) \
             if in_process else integrator_runs

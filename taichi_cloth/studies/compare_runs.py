@@ -18,6 +18,28 @@ from taichi_cloth.studies.executors import WORKER_THREADS
 WARMUP_FRAMES = 2  # frames 0 and 1 launch every kernel variant a run uses
 TIMING_REPEATS = 5  # a short run is timed up to this many times, the fastest counts
 TIMING_SECONDS = 0.2  # ... while its repeats total less than this [s] of substeps
+# particle-substeps per second of each integrator in f64 on a small sheet (64 particles, one
+# Taichi thread, the 2-core CPU machine; docs/comparison.md), and the compile time of one
+# integrator's kernels [s]: what ``estimate_seconds`` says up front
+NOMINAL_RATES = {"euler": 1.1e7, "symplectic": 1.1e7, "rk4": 2.9e6, "implicit": 1.6e5}
+NOMINAL_COMPILE = 3.0
+
+
+def estimate_seconds(jobs: list, frame_count: int, particles: int) -> float:
+    """The wall time a comparison's ``jobs`` (``IntegratorJob``) should take on a machine like
+    the one ``NOMINAL_RATES`` was measured on: every run's substeps (its warm-up frames and,
+    when short, its timing repeats included) at its integrator's rate, and each integrator's
+    compilation."""
+    seconds = 0.0
+    for job in jobs:
+        seconds += NOMINAL_COMPILE
+        for step in job.steps:
+            run = frame_count * step.substeps_per_frame * particles / NOMINAL_RATES[job.integrator]
+            if job.measured:
+                run = run * (frame_count + WARMUP_FRAMES) / frame_count
+                run += min(run * (TIMING_REPEATS - 1), TIMING_SECONDS)
+            seconds += run
+    return seconds
 
 
 @dataclass
