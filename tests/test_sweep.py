@@ -147,3 +147,11 @@ def test_a_killed_sweep_resumed_runs_only_what_is_missing(tmp_path):
     assert {name: after[name] for name in finished} == finished  # not run again
     rows = json.loads((tmp_path / "results.json").read_text())["runs"]
     assert [row["status"] for row in rows] == ["done"] * 3
+
+
+def test_a_cluster_of_threaded_workers_is_refused():
+    distributed = pytest.importorskip("distributed", reason="the cluster extra is not installed")
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=False,
+                                  dashboard_address=None) as cluster:
+        with pytest.raises(InputError, match="--nthreads 1"):
+            make_executor(None, cluster.scheduler_address)

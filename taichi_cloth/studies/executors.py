@@ -167,6 +167,14 @@ class DaskExecutor:
                              f"({' '.join(str(error).split())})") from None
         self.address = address
         workers = self.client.scheduler_info(n_workers=-1)["workers"].values()
+        threaded = [worker for worker in workers if worker.get("nthreads", 1) != 1]
+        if not workers or threaded:
+            self.client.close()
+            raise InputError(f"--cluster {address}: " + (
+                "the cluster has no workers" if not workers else
+                f"a worker runs {threaded[0].get('nthreads')} threads; a worker process holds "
+                f"one Taichi runtime, which runs one simulation at a time: start the workers "
+                f"with --nthreads 1 (docs/scaling.md)"))
         self.workers = sum(worker.get("nthreads", 1) for worker in workers)
         self.hosts = {}
         for worker in workers:
