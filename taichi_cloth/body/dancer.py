@@ -76,7 +76,7 @@ KNEE_FLEXION_MIN = np.radians(3.0)  # the legs never straighten beyond this, rad
 LEG_REACH_SOFTNESS = 0.001  # width of the soft reach limit, m
 
 # --- collision capsules: per bone kind, the tiles (name suffix, radius in m) --
-_CAPSULE_TILES = MappingProxyType({
+CAPSULE_TILES = MappingProxyType({
     "coarse": MappingProxyType({
         "pelvis": (("", 0.115),),
         "back": (("", 0.115),),
@@ -91,7 +91,7 @@ _CAPSULE_TILES = MappingProxyType({
     }),
 })
 # bones in capsule order: (bone name, bone kind); the bone index is the position here
-_BONES = (
+BONES = (
     ("pelvis", "pelvis"),
     ("back", "back"),
     ("thigh_left", "thigh"),
@@ -105,13 +105,46 @@ DISPLAY_CAPSULE_NAMES = (
     "neck", "head", "upper_arm_left", "upper_arm_right",
     "forearm_left", "forearm_right", "foot_left", "foot_right",
 )
-_DISPLAY_CAPSULE_RADIUS = (0.05, 0.09, 0.04, 0.04, 0.032, 0.032, 0.03, 0.03)
+DISPLAY_CAPSULE_RADIUS = (0.05, 0.09, 0.04, 0.04, 0.032, 0.032, 0.03, 0.03)
 _NECK_TOP_LOCAL = (0.0, 0.08, 0.0)  # chest frame, origin at the neck base
 _HEAD_SEGMENT_LOCAL = ((0.0, 0.14, 0.01), (0.0, 0.17, 0.01))
 _SHOULDER_LOCAL = (0.17, -0.03, 0.0)  # left shoulder in the chest frame
 _UPPER_ARM_LOCAL = (0.17, -0.20, 0.08)  # left shoulder -> elbow, arms held out (hula)
 _FOREARM_LOCAL = (0.13, -0.03, 0.20)  # left elbow -> wrist
 _FOOT_WORLD = (0.0, -0.04, 0.14)  # ankle -> toe, feet face +z
+
+class CapsuleLayout:
+    """The collision capsules of a layout (``"coarse"`` or ``"split"``) on the bones ``BONES``:
+    each bone tiled by its kind's capsules, their radii [m] times ``scale``."""
+
+    def __init__(self, capsules: str, scale: float):
+        names, bone, fraction, radius = [], [], [], []
+        for bone_index, (bone_name, bone_kind) in enumerate(BONES):
+            tiles = CAPSULE_TILES[capsules][bone_kind]
+            for tile_index, (suffix, tile_radius) in enumerate(tiles):
+                names.append(f"{bone_name}_{suffix}" if suffix else bone_name)
+                bone.append(bone_index)
+                fraction.append((tile_index / len(tiles), (tile_index + 1) / len(tiles)))
+                radius.append(tile_radius)
+        self.names = tuple(names)
+        self.radius = scale * np.array(radius)
+        self.bone = np.array(bone)  # (C,) index into BONES
+        self.fraction = np.array(fraction)  # (C, 2) tile ends along the bone, 0..1
+
+    def bones(self, capsule_a, capsule_b):
+        """(bone start, bone end), each (len(BONES), 3): the first tile's start and the last
+        tile's end of each bone (the inverse of ``tile``)."""
+        first = np.searchsorted(self.bone, np.arange(len(BONES)), side="left")
+        last = np.searchsorted(self.bone, np.arange(len(BONES)), side="right") - 1
+        return np.asarray(capsule_a)[first], np.asarray(capsule_b)[last]
+
+    def tile(self, bone_start, bone_end):
+        """(capsule_a, capsule_b), each (C, 3), of bones from ``bone_start`` to ``bone_end``
+        (each (len(BONES), 3), in ``BONES`` order; complex values pass through)."""
+        vector = (bone_end - bone_start)[self.bone]
+        start = bone_start[self.bone]
+        return start + self.fraction[:, :1] * vector, start + self.fraction[:, 1:] * vector
+
 
 def _rotation_x(angle):
     """Rotation matrix about +x by ``angle`` (rad)."""
@@ -246,23 +279,13 @@ class Body:
         self.ease_in = float(ease_in)
         self._dance_gain = 1.0 if motion in ("hula", "sway") else 0.0
 
-        tiles = _CAPSULE_TILES[capsules]
-        capsule_names, capsule_bone, capsule_fraction, capsule_radius = [], [], [], []
-        for bone_index, (bone_name, bone_kind) in enumerate(_BONES):
-            bone_tiles = tiles[bone_kind]
-            for tile_index, (suffix, radius) in enumerate(bone_tiles):
-                capsule_names.append(f"{bone_name}_{suffix}" if suffix else bone_name)
-                capsule_bone.append(bone_index)
-                capsule_fraction.append((tile_index / len(bone_tiles), (tile_index + 1) / len(bone_tiles)))
-                capsule_radius.append(radius)
-        self.capsule_names = tuple(capsule_names)
-        self.capsule_count = len(capsule_names)
-        self.capsule_radius = self.scale * np.array(capsule_radius)
-        self._capsule_bone = np.array(capsule_bone)  # (C,) index into the bone list
-        self._capsule_fraction = np.array(capsule_fraction)  # (C, 2) tile ends along the bone, 0..1
+        self.layout = CapsuleLayout(capsules, self.scale)
+        self.capsule_names = self.layout.names
+        self.capsule_count = len(self.capsule_names)
+        self.capsule_radius = self.layout.radius
 
         self.display_capsule_count = len(DISPLAY_CAPSULE_NAMES)
-        self.display_capsule_radius = self.scale * np.array(_DISPLAY_CAPSULE_RADIUS)
+        self.display_capsule_radius = self.scale * np.array(DISPLAY_CAPSULE_RADIUS)
         self.waist_height = self.scale * WAIST_HEIGHT
         self.waist_radius = self.scale * WAIST_RADIUS
         self.loop_period = LOOP_BEATS * 60.0 / self.tempo
@@ -365,9 +388,7 @@ class Body:
 
         bone_start = np.stack([pelvis_segment[0], pelvis_position, hip[0], hip[1], knee[0], knee[1]])
         bone_end = np.stack([pelvis_segment[1], neck_base, knee[0], knee[1], ankle[0], ankle[1]])
-        bone_vector = (bone_end - bone_start)[self._capsule_bone]
-        capsule_a = bone_start[self._capsule_bone] + self._capsule_fraction[:, :1] * bone_vector
-        capsule_b = bone_start[self._capsule_bone] + self._capsule_fraction[:, 1:] * bone_vector
+        capsule_a, capsule_b = self.layout.tile(bone_start, bone_end)
 
         shoulder = np.array([_SHOULDER_LOCAL, mirror * _SHOULDER_LOCAL])
         elbow = shoulder + np.array([_UPPER_ARM_LOCAL, mirror * _UPPER_ARM_LOCAL])

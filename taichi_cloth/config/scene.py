@@ -270,7 +270,9 @@ def resolved_document(scene: Scene) -> dict:
         values = {}
         for field in dataclasses.fields(settings):
             value = getattr(settings, field.name)
-            if value is not None and not dataclasses.is_dataclass(value):
+            if dataclasses.is_dataclass(value):
+                values[field.name] = table(value)  # a nested table (body.bvh)
+            elif value is not None:
                 values[field.name] = list(value) if isinstance(value, tuple) else value
         return values
 

@@ -139,9 +139,30 @@ class ClothConfig:
 
 
 @dataclass(frozen=True)
+class BvhConfig:
+    """[body.bvh] (or body.bvh = "clip.bvh"): the motion capture clip of body.motion = "bvh"
+    (``body/mocap.py``)."""
+
+    file: str = setting("", "str", doc="a .bvh file, relative to the scene file")
+    units: str = setting("auto", "str", choices=("auto", "m", "cm", "inch"),
+                         doc="the file's length unit (auto: from the leg's length)")
+    up: str = setting("auto", "str", choices=("auto", "y", "z"),
+                      doc="the file's up axis (auto: along hips to neck)")
+    start: float = setting(0.0, "float", low=0.0, doc="s into the clip where the dance starts")
+    end: float = setting(0.0, "float", low=0.0, doc="s into the clip where it ends; 0 = the end")
+    loop: str = setting("auto", "str", choices=("auto", "yes", "no"),
+                        doc="auto: when the last frame repeats the first; no: hold the last")
+    joints: tuple = setting([], "str_list", doc="\"ours=theirs\" joint names beyond the "
+                                                "built-in Mixamo and CMU maps")
+
+
+@dataclass(frozen=True)
 class BodyConfig:
-    motion: str = setting("still", "str", choices=("hula", "sway", "twirl", "still"),
-                          doc="sway: rocks side to side, feet planted; twirl: spins and stops")
+    motion: str = setting("still", "str", choices=("hula", "sway", "twirl", "bvh", "still"),
+                          doc="sway: rocks side to side, feet planted; twirl: spins and stops; "
+                              "bvh: the motion capture clip [body.bvh]")
+    bvh: BvhConfig = setting(BvhConfig(), "table", shorthand="file",
+                             doc="motion = \"bvh\": the clip and how to read it")
     tempo: float = setting(90.0, "float", low=0.0, low_inclusive=False, high=400.0,
                            doc="beats per minute")
     amplitude: float = setting(1.0, "float", low=0.0, high=3.0, doc="scale of sway and circles; twirl: turns")

@@ -10,15 +10,30 @@ host inside the substep loop.
 """
 
 import dataclasses
+from pathlib import Path
 
 import numpy as np
 
 from taichi_cloth.body.dancer import Body
+from taichi_cloth.body.mocap import MocapBody
 from taichi_cloth.body.props import PROPS, Bar
 from taichi_cloth.config.scene import Scene
+from taichi_cloth.errors import InputError
 from taichi_cloth.physics.control import Control
 
 SAMPLES_PER_FRAME = 8
+
+
+def bvh_path(scene: Scene) -> Path:
+    """body.bvh.file, relative to the scene file; InputError when it is not a file."""
+    name = scene.body.bvh.file
+    if not name:
+        raise InputError(f"{scene.path}: body.bvh: motion = \"bvh\" needs a clip, e.g. "
+                         f"body.bvh = \"dance.bvh\"")
+    path = Path(name) if Path(name).is_absolute() else Path(scene.path).parent / name
+    if not path.is_file():
+        raise InputError(f"{scene.path}: body.bvh: {path} is not a file")
+    return path
 
 
 class BodyRig:
@@ -30,6 +45,9 @@ class BodyRig:
         config = scene.body
         if config.capsules in PROPS:
             self.body = Bar(config.capsules, config.scale, config.offset)
+        elif config.motion == "bvh":
+            self.body = MocapBody(bvh_path(scene), config.bvh, config.capsules, config.scale,
+                                  config.ease_in)
         else:
             self.body = Body(config.motion, config.tempo, config.amplitude, config.capsules,
                              config.scale, config.ease_in)
