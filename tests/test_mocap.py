@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from taichi_cloth import cli
-from taichi_cloth.body.bvh_export import dance_joints, write_dance_bvh
+from taichi_cloth.body.bvh_export import MIXAMO_NAMES, dance_joints, write_dance_bvh
 from taichi_cloth.body.dancer import Body
 from taichi_cloth.body.mocap import CMU, JOINT_NAMES, MocapBody, read_clip
 from taichi_cloth.body.spline import CubicSpline
@@ -41,20 +41,21 @@ def test_the_spline_passes_through_the_samples_and_is_twice_differentiable():
 
 @pytest.fixture(scope="module")
 def clips(tmp_path_factory):
-    """The twirl (two whole turns, looping) and a 2 s hula, as BVH files of each convention."""
+    """The twirl (two whole turns, looping) in each naming, unit and up axis, and a 2 s hula."""
     folder = tmp_path_factory.mktemp("bvh")
     twirl = Body("twirl", 90.0, 1.0, "split", 1.0, 0.0)
     hula = Body("hula", 90.0, 1.0, "split", 1.0, 0.0)
-    write_dance_bvh(twirl, folder / "twirl_mixamo_cm.bvh", twirl.loop_period, FPS)
-    write_dance_bvh(twirl, folder / "twirl_cmu_m.bvh", twirl.loop_period, FPS, CMU_NAMES, "z",
-                    1.0)
+    for names, label in ((MIXAMO_NAMES, "mixamo"), (CMU_NAMES, "cmu")):
+        for up, unit, unit_name in (("y", 1.0, "m"), ("z", 0.01, "cm"), ("y", 0.0254, "inch")):
+            write_dance_bvh(twirl, folder / f"twirl_{label}_{up}_{unit_name}.bvh",
+                            twirl.loop_period, FPS, names, up, unit)
     write_dance_bvh(hula, folder / "hula.bvh", 2.0, FPS)
     return folder, twirl, hula
 
 
 def test_a_bvh_written_from_a_dance_reads_back_to_its_joints(clips):
     folder, twirl, hula = clips
-    for name, body, metres in (("hula.bvh", hula, 0.01), ("twirl_mixamo_cm.bvh", twirl, 0.01)):
+    for name, body, metres in (("hula.bvh", hula, 0.01), ("twirl_mixamo_y_m.bvh", twirl, 1.0)):
         joints, _, frame_time = read_clip(folder / name, ())
         assert math.isclose(frame_time, 1 / FPS)
         for frame in range(0, len(joints), 7):
@@ -63,11 +64,13 @@ def test_a_bvh_written_from_a_dance_reads_back_to_its_joints(clips):
                 np.testing.assert_allclose(joints[frame, k] * metres, expected[joint], atol=1e-6)
 
 
-@pytest.mark.parametrize("name", ["twirl_mixamo_cm.bvh", "twirl_cmu_m.bvh"])
-def test_both_conventions_drive_the_capsules_of_the_dance(clips, name):
-    """Mixamo names, cm, y up and CMU names, m, z up map onto the same capsules, along the same
-    bones, as the procedural dance they were written from (the clip loops: its last frame is its
-    first), with its velocities and pelvis frame."""
+@pytest.mark.parametrize("names", ["mixamo", "cmu"])
+@pytest.mark.parametrize("axes", ["y_m", "z_cm", "y_inch"])
+def test_both_conventions_drive_the_capsules_of_the_dance(clips, names, axes):
+    """Mixamo and CMU names, in m with y up, cm with z up or inches, map onto the same capsules,
+    along the same bones, as the procedural dance they were written from (the clip loops: its
+    last frame is its first), with its velocities and pelvis frame; units and up found alone."""
+    name = f"twirl_{names}_{axes}.bvh"
     folder, twirl, _ = clips
     mocap = MocapBody(folder / name, BvhConfig(), "split", 1.0, ease_in=0.0)
     assert mocap.loops and math.isclose(mocap.period, twirl.loop_period)
