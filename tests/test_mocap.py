@@ -160,10 +160,10 @@ def test_the_mocap_scene_runs_on_its_shipped_clip():
     from taichi_cloth.physics.simulation import Simulation
     from taichi_cloth.physics.settling import settle
     from taichi_cloth.physics.metrics import RunRecord
-    scene = load_scene("mocap", ("cloth.resolution=[24, 10]", "simulation.settle=0.5"))
+    scene = load_scene("mocap", ("cloth.resolution=[16, 8]", "simulation.settle=0.3"))
     simulation = Simulation(scene)
     settle(simulation, RunRecord())
-    stats = simulation.stats(simulation.run(15))
+    stats = simulation.stats(simulation.run(8))
     assert stats["finite"] and stats["max_strain"] < 0.05
     assert stats["max_penetration"] < scene.effects["collision"].thickness
     assert dataclasses.asdict(scene.body.bvh)["file"] == "motions/hula.bvh"

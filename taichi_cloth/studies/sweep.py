@@ -31,6 +31,7 @@ from pathlib import Path
 from taichi_cloth.errors import InputError, UnstableError
 from taichi_cloth.output.files import write_csv, write_json, write_png
 from taichi_cloth.output.folder import OwnedFolder
+from taichi_cloth.output.progress import announce
 from taichi_cloth.output.run import OUTPUT_ROOT, check_writable, safe_name
 from taichi_cloth.studies.executors import WORKER_THREADS
 
@@ -296,6 +297,9 @@ def sweep(scene: str | None, grids: list[str], overrides: list[str], frames: int
             write_json(directory / PLAN_FILE, recorded)
             rows = dict(done)
             todo = [job for job in jobs if job.index not in done]
+            announce(f"sweep {plan.scene}", f"{len(todo)} runs to do ({len(done)} done) on "
+                     f"{executor.workers} worker(s), {executor.kind}; each compiles its "
+                     f"kernels first (about 1 s warm, 3 s cold: docs/scaling.md)", quiet)
             with tqdm(total=len(jobs), initial=len(done), desc=f"sweep {plan.scene}",
                       unit="run", disable=quiet) as bar:
                 for job, outcome in executor.run(run_job, todo):
