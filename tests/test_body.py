@@ -292,3 +292,30 @@ def test_sway_rocks_the_hips_over_planted_feet_and_loops():
                                    atol=1e-6)
         later = body.pose(t + body.loop_period)
         np.testing.assert_allclose(later.capsule_a, now.capsule_a, atol=1e-9)
+
+
+def test_walk_steps_on_the_spot_left_and_right_in_turn_and_loops():
+    """walk: each ankle travels ±WALK_STRIDE/2 forward and back, the two in opposition, lifted
+    up to WALK_LIFT while it swings forward and on the ground while it carries the weight back;
+    the velocities are the positions' derivatives and the walk repeats every loop."""
+    from taichi_cloth.body.dancer import ANKLE_HEIGHT, WALK_BEATS, WALK_LIFT, WALK_STRIDE
+    body = Body(motion="walk")
+    ankle = [body.capsule_names.index("shin_left_1"), body.capsule_names.index("shin_right_1")]
+    stride = WALK_BEATS * 60.0 / body.tempo
+    times = body.ease_in + np.linspace(0.0, stride, 65)
+    ends = np.array([body.pose(t).capsule_b[ankle] for t in times])  # (T, 2, 3)
+    forward, height = ends[:, :, 2], ends[:, :, 1]
+    assert forward.max() == pytest.approx(WALK_STRIDE / 2, abs=2e-3)
+    assert forward.min() == pytest.approx(-WALK_STRIDE / 2, abs=2e-3)
+    np.testing.assert_allclose(forward[:, 0], -forward[:, 1], atol=1e-6)  # in opposition
+    assert height.min() >= ANKLE_HEIGHT - 1e-6
+    assert height.max() == pytest.approx(ANKLE_HEIGHT + WALK_LIFT, abs=2e-3)
+    moving_back = np.gradient(forward[:, 0]) < 0
+    assert np.all(height[moving_back, 0] < ANKLE_HEIGHT + 0.01)  # the stance foot stays low
+    step = 1e-6
+    for t in (1.3, 2.2):
+        before, now, after = body.pose(t - step), body.pose(t), body.pose(t + step)
+        np.testing.assert_allclose(now.capsule_velocity_b,
+                                   (after.capsule_b - before.capsule_b) / (2 * step), atol=1e-6)
+        np.testing.assert_allclose(body.pose(t + body.loop_period).capsule_a, now.capsule_a,
+                                   atol=1e-9)

@@ -1,5 +1,5 @@
 """Write the procedural dances as BVH clips, ``scenes/motions/<dance>.bvh``: one whole loop of
-each (hula, sway and twirl at 90 beats a minute, no ease-in, 30 frames a second), so that the
+each (hula, sway, twirl and walk at 90 beats a minute, no ease-in, 30 frames a second), so that the
 clip's last frame is its first and a reader loops it. The ``mocap`` scene plays ``hula.bvh``;
 any BVH tool (Blender, a motion library) can play them too. Deterministic; run
 
@@ -19,7 +19,7 @@ TEMPO = 90.0  # beats per minute
 
 
 def main(folder: Path) -> None:
-    for motion in ("hula", "sway", "twirl"):
+    for motion in ("hula", "sway", "twirl", "walk"):
         body = Body(motion, TEMPO, 1.0, "split", 1.0, ease_in=0.0)
         loop = body.loop_period  # 8 beats: every dance repeats after it
         write_dance_bvh(body, folder / f"{motion}.bvh", loop, FPS)

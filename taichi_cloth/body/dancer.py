@@ -38,6 +38,14 @@ steps and no hip circle: slow and calm at a low tempo.
 Motion ``"twirl"``: the rest pose turned about the vertical through her
 feet by the spin-and-stop angle of ``body.twirl`` (for a circle skirt).
 
+Motion ``"walk"``: walking on the spot, as on a treadmill: with the stride
+phase phi = 2 pi beat / WALK_BEATS the left foot is at z = WALK_STRIDE/2 sin phi
+(the right opposite), lifted by WALK_LIFT ((1 + cos phi)/2)^4 while it swings
+forward (the right by ((1 - cos phi)/2)^4); the pelvis sinks WALK_SINK so the
+legs reach, bobs WALK_BOB (1 - cos 2 phi)/2, sways WALK_SWAY over the stance
+foot (-cos phi) with the hula's hip roll, and turns -WALK_YAW sin phi with the
+stride.  All sinusoids of the beat: C-infinity and periodic.
+
 Velocities are exact derivatives computed by the complex step: for a
 function f analytic in t, f'(t) = Im f(t + i h) / h + O(h^2) with no
 subtractive cancellation, so h = 1e-20 s gives them to machine precision.
@@ -48,19 +56,27 @@ norms, branches only on real parts).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from types import MappingProxyType
 
 import numpy as np
 
+from taichi_cloth.body.capsules import (CAPSULE_LAYOUT_NAMES, DISPLAY_CAPSULE_NAMES,
+                                        DISPLAY_CAPSULE_RADIUS, CapsuleLayout)
 from taichi_cloth.body.twirl import twirl_turns
 from taichi_cloth.body.hula import (BACK_COUNTER, COMPLEX_STEP, FOOT_LIFT, HIP_CIRCLE_BEATS,
                                    HIP_CIRCLE_RADIUS, HIP_SWAY, KAHOLO_HARMONICS, LOOP_BEATS,
                                    PELVIS_DIP, PELVIS_PITCH, PELVIS_ROLL, PELVIS_SINK, PELVIS_YAW,
                                    STEP_LENGTH, kaholo_series, smoothstep)
 
-MOTION_NAMES = ("still", "hula", "sway", "twirl")
+MOTION_NAMES = ("still", "hula", "sway", "twirl", "walk")
 SWAY_BEATS = 4  # a sway: the weight over the left foot, then the right, in this many beats
-CAPSULE_LAYOUT_NAMES = ("coarse", "split")
+# walk (on the spot, as on a treadmill): a stride (a step with each foot) every WALK_BEATS beats
+WALK_BEATS = 2
+WALK_STRIDE = 0.24  # m: each foot travels ± half of it forward and back
+WALK_LIFT = 0.06  # m: the swinging foot's highest lift
+WALK_SINK = 0.03  # m: the pelvis lower than at rest, so that the legs reach the stride
+WALK_BOB = 0.012  # m: the pelvis dips this much at double support
+WALK_SWAY = 0.03  # m: the pelvis over the stance foot
+WALK_YAW = np.radians(6.0)  # rad: the pelvis turns with the stride
 
 # --- rest skeleton, metres at scale 1 ---------------------------------------
 WAIST_HEIGHT = 0.99  # y of the waist circle centre = pelvis frame origin
@@ -75,76 +91,13 @@ PELVIS_CENTRE_LOCAL = (0.0, -0.12, -0.015)  # pelvis segment midpoint in the pel
 KNEE_FLEXION_MIN = np.radians(3.0)  # the legs never straighten beyond this, rad
 LEG_REACH_SOFTNESS = 0.001  # width of the soft reach limit, m
 
-# --- collision capsules: per bone kind, the tiles (name suffix, radius in m) --
-CAPSULE_TILES = MappingProxyType({
-    "coarse": MappingProxyType({
-        "pelvis": (("", 0.115),),
-        "back": (("", 0.115),),
-        "thigh": (("", 0.072),),
-        "shin": (("", 0.045),),
-    }),
-    "split": MappingProxyType({
-        "pelvis": (("", 0.115),),
-        "back": (("lower", 0.11), ("upper", 0.12)),
-        "thigh": (("0", 0.085), ("1", 0.07), ("2", 0.057)),
-        "shin": (("0", 0.05), ("1", 0.037)),
-    }),
-})
-# bones in capsule order: (bone name, bone kind); the bone index is the position here
-BONES = (
-    ("pelvis", "pelvis"),
-    ("back", "back"),
-    ("thigh_left", "thigh"),
-    ("thigh_right", "thigh"),
-    ("shin_left", "shin"),
-    ("shin_right", "shin"),
-)
-
 # --- display capsules (rendering only, not collided) --------------------------
-DISPLAY_CAPSULE_NAMES = (
-    "neck", "head", "upper_arm_left", "upper_arm_right",
-    "forearm_left", "forearm_right", "foot_left", "foot_right",
-)
-DISPLAY_CAPSULE_RADIUS = (0.05, 0.09, 0.04, 0.04, 0.032, 0.032, 0.03, 0.03)
 _NECK_TOP_LOCAL = (0.0, 0.08, 0.0)  # chest frame, origin at the neck base
 _HEAD_SEGMENT_LOCAL = ((0.0, 0.14, 0.01), (0.0, 0.17, 0.01))
 _SHOULDER_LOCAL = (0.17, -0.03, 0.0)  # left shoulder in the chest frame
 _UPPER_ARM_LOCAL = (0.17, -0.20, 0.08)  # left shoulder -> elbow, arms held out (hula)
 _FOREARM_LOCAL = (0.13, -0.03, 0.20)  # left elbow -> wrist
 _FOOT_WORLD = (0.0, -0.04, 0.14)  # ankle -> toe, feet face +z
-
-class CapsuleLayout:
-    """The collision capsules of a layout (``"coarse"`` or ``"split"``) on the bones ``BONES``:
-    each bone tiled by its kind's capsules, their radii [m] times ``scale``."""
-
-    def __init__(self, capsules: str, scale: float):
-        names, bone, fraction, radius = [], [], [], []
-        for bone_index, (bone_name, bone_kind) in enumerate(BONES):
-            tiles = CAPSULE_TILES[capsules][bone_kind]
-            for tile_index, (suffix, tile_radius) in enumerate(tiles):
-                names.append(f"{bone_name}_{suffix}" if suffix else bone_name)
-                bone.append(bone_index)
-                fraction.append((tile_index / len(tiles), (tile_index + 1) / len(tiles)))
-                radius.append(tile_radius)
-        self.names = tuple(names)
-        self.radius = scale * np.array(radius)
-        self.bone = np.array(bone)  # (C,) index into BONES
-        self.fraction = np.array(fraction)  # (C, 2) tile ends along the bone, 0..1
-
-    def bones(self, capsule_a, capsule_b):
-        """(bone start, bone end), each (len(BONES), 3): the first tile's start and the last
-        tile's end of each bone (the inverse of ``tile``)."""
-        first = np.searchsorted(self.bone, np.arange(len(BONES)), side="left")
-        last = np.searchsorted(self.bone, np.arange(len(BONES)), side="right") - 1
-        return np.asarray(capsule_a)[first], np.asarray(capsule_b)[last]
-
-    def tile(self, bone_start, bone_end):
-        """(capsule_a, capsule_b), each (C, 3), of bones from ``bone_start`` to ``bone_end``
-        (each (len(BONES), 3), in ``BONES`` order; complex values pass through)."""
-        vector = (bone_end - bone_start)[self.bone]
-        start = bone_start[self.bone]
-        return start + self.fraction[:, :1] * vector, start + self.fraction[:, 1:] * vector
-
 
 def _rotation_x(angle):
     """Rotation matrix about +x by ``angle`` (rad)."""
@@ -277,7 +230,7 @@ class Body:
         self.capsule_layout = capsules
         self.scale = float(scale)
         self.ease_in = float(ease_in)
-        self._dance_gain = 1.0 if motion in ("hula", "sway") else 0.0
+        self._dance_gain = 1.0 if motion in ("hula", "sway", "walk") else 0.0
 
         self.layout = CapsuleLayout(capsules, self.scale)
         self.capsule_names = self.layout.names
@@ -348,9 +301,26 @@ class Body:
         sway_gain = self.amplitude * step_gain
         beat = self.tempo * t / 60.0
         circle_phase = 2.0 * np.pi * beat / HIP_CIRCLE_BEATS
+        stride = 0.0 * beat  # walk: the feet's travel forward (+z), the pelvis's bob and turn
+        bob = turn = 0.0 * beat
+        sink = PELVIS_SINK + PELVIS_DIP * 0.5 * (1.0 - np.cos(2.0 * np.pi * beat))
+        reach_sink = 0.0  # walk: lower by this (× the step gain) to reach the stride
+        sway = HIP_SWAY
         if self.motion == "sway":  # feet planted, the weight rocking side to side, no circle
             step_left = step_right = lift_left = lift_right = 0.0 * beat
             weight_side = np.sin(2.0 * np.pi * beat / SWAY_BEATS)
+            circle_phase = 0.0 * beat
+            circle = 0.0
+        elif self.motion == "walk":  # the left foot swings forward while phi runs -pi/2..pi/2
+            phase = 2.0 * np.pi * beat / WALK_BEATS
+            step_left = step_right = 0.0 * beat
+            stride = 0.5 * WALK_STRIDE * np.sin(phase)
+            lift_left = (WALK_LIFT / FOOT_LIFT) * (0.5 * (1.0 + np.cos(phase))) ** 4
+            lift_right = (WALK_LIFT / FOOT_LIFT) * (0.5 * (1.0 - np.cos(phase))) ** 4
+            weight_side = -np.cos(phase)  # over the stance foot: the left at phase = pi
+            bob = WALK_BOB * 0.5 * (1.0 - np.cos(2.0 * phase))  # lowest at double support
+            turn = -WALK_YAW * np.sin(phase)  # the left hip forward with the left foot
+            sink, reach_sink, sway = 0.0, WALK_SINK, WALK_SWAY
             circle_phase = 0.0 * beat
             circle = 0.0
         else:
@@ -359,20 +329,21 @@ class Body:
 
         hip_x = HIP_JOINT_LOCAL[0]
         foot_target = np.array([
-            [hip_x - step_gain * STEP_LENGTH * step_left, ANKLE_HEIGHT + step_gain * FOOT_LIFT * lift_left, 0],
-            [-hip_x - step_gain * STEP_LENGTH * step_right, ANKLE_HEIGHT + step_gain * FOOT_LIFT * lift_right, 0],
+            [hip_x - step_gain * STEP_LENGTH * step_left, ANKLE_HEIGHT + step_gain * FOOT_LIFT * lift_left,
+             step_gain * stride],
+            [-hip_x - step_gain * STEP_LENGTH * step_right, ANKLE_HEIGHT + step_gain * FOOT_LIFT * lift_right,
+             -step_gain * stride],
         ])
-        pelvis_shift_x = sway_gain * (HIP_SWAY * weight_side
+        pelvis_shift_x = sway_gain * (sway * weight_side
                                       + circle * HIP_CIRCLE_RADIUS * np.cos(circle_phase))
         pelvis_shift_z = sway_gain * circle * HIP_CIRCLE_RADIUS * np.sin(circle_phase)
-        pelvis_dip = PELVIS_DIP * 0.5 * (1.0 - np.cos(2.0 * np.pi * beat))
-        pelvis_sink = sway_gain * self.amplitude * (PELVIS_SINK + pelvis_dip)
+        pelvis_sink = sway_gain * (self.amplitude * sink + bob) + step_gain * reach_sink
         pelvis_position = np.array([
             0.5 * (foot_target[0, 0] + foot_target[1, 0]) + pelvis_shift_x,
             WAIST_HEIGHT - pelvis_sink,
             pelvis_shift_z,
         ])
-        pelvis_rotation = (_rotation_y(sway_gain * PELVIS_YAW * np.sin(circle_phase))
+        pelvis_rotation = (_rotation_y(sway_gain * (PELVIS_YAW * np.sin(circle_phase) + turn))
                            @ _rotation_z(sway_gain * PELVIS_ROLL * weight_side)
                            @ _rotation_x(-sway_gain * PELVIS_PITCH * np.sin(circle_phase)))
 

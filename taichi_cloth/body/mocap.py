@@ -36,9 +36,9 @@ from pathlib import Path
 
 import numpy as np
 
-from taichi_cloth.body.dancer import (ANKLE_HEIGHT, DISPLAY_CAPSULE_RADIUS, HIP_JOINT_LOCAL,
-                                      PELVIS_CENTRE_LOCAL, PELVIS_HALF_WIDTH, SHIN_LENGTH,
-                                      THIGH_LENGTH, BodyPose, CapsuleLayout)
+from taichi_cloth.body.capsules import DISPLAY_CAPSULE_RADIUS, CapsuleLayout
+from taichi_cloth.body.dancer import (ANKLE_HEIGHT, HIP_JOINT_LOCAL, PELVIS_CENTRE_LOCAL,
+                                      PELVIS_HALF_WIDTH, SHIN_LENGTH, THIGH_LENGTH, BodyPose)
 from taichi_cloth.body.hula import smoothstep
 from taichi_cloth.body.spline import CubicSpline
 from taichi_cloth.errors import InputError

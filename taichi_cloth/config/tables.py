@@ -158,9 +158,10 @@ class BvhConfig:
 
 @dataclass(frozen=True)
 class BodyConfig:
-    motion: str = setting("still", "str", choices=("hula", "sway", "twirl", "bvh", "still"),
+    motion: str = setting("still", "str",
+                          choices=("hula", "sway", "twirl", "walk", "bvh", "still"),
                           doc="sway: rocks side to side, feet planted; twirl: spins and stops; "
-                              "bvh: the motion capture clip [body.bvh]")
+                              "walk: on the spot; bvh: the motion capture clip [body.bvh]")
     bvh: BvhConfig = setting(BvhConfig(), "table", shorthand="file",
                              doc="motion = \"bvh\": the clip and how to read it")
     tempo: float = setting(90.0, "float", low=0.0, low_inclusive=False, high=400.0,

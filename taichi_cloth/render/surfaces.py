@@ -20,7 +20,7 @@ frame whose third axis is (b − a)/|b − a|; the normal is F n.
 import numpy as np
 import taichi as ti
 
-from taichi_cloth.body.dancer import DISPLAY_CAPSULE_NAMES
+from taichi_cloth.body.capsules import DISPLAY_CAPSULE_NAMES
 from taichi_cloth.cloth.garment import Garment
 from taichi_cloth.cloth.topology import grid_triangles
 from taichi_cloth.gather import triangle_gather_lists
