@@ -297,3 +297,26 @@ def test_sheet_ripple_bends_the_start_without_stretching_it(orientation, across)
         np.testing.assert_allclose(now, rest, rtol=2e-4)
     with pytest.raises(InputError, match="cloth.ripple"):
         garment_of("sheet", *settings, "cloth.ripple=[0.2, 3.0]")
+
+
+def test_a_pleated_skirt_zigzags_round_its_waist_with_the_fabric_of_its_pleats():
+    """pleated: each ring's radius is the cone's ± pleat_depth/2 in a triangle wave of `pleats`
+    periods (with two particles a pleat: inner folds on even ones, outer on odd ones), the waist ring's rest length is
+    the zigzag's, longer than the circle's by the pleats' fabric, and its mass that fabric's."""
+    pleats, depth = 6, 0.03
+    scene, garment = garment_of("skirt", "cloth.shape='pleated'", f"cloth.pleats={pleats}",
+                                f"cloth.pleat_depth={depth}", "cloth.resolution=[12, 5]")
+    _, plain = garment_of("skirt", "cloth.resolution=[12, 5]")
+    radius = np.hypot(garment.positions[:, 0], garment.positions[:, 2]).reshape(5, 12)
+    cone = np.hypot(plain.positions[:, 0], plain.positions[:, 2]).reshape(5, 12)
+    offset = radius - cone
+    np.testing.assert_allclose(offset[:, ::2], -depth / 2, atol=1e-12)  # inner folds
+    np.testing.assert_allclose(offset[:, 1::2], depth / 2, atol=1e-12)  # outer folds
+    def perimeter(ring):
+        return np.linalg.norm(np.roll(ring, -1, axis=0) - ring, axis=1).sum()
+
+    assert perimeter(garment.positions[:12]) > 1.02 * perimeter(plain.positions[:12])  # pleats
+    assert garment.mass.sum() > plain.mass.sum()
+    assert np.flatnonzero(garment.pinned).tolist() == list(range(12))  # held at the waist
+    with pytest.raises(InputError, match="multiple of 2 × pleats"):
+        garment_of("skirt", "cloth.shape='pleated'", "cloth.pleats=7", "cloth.resolution=[24, 5]")

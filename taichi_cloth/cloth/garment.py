@@ -126,10 +126,23 @@ def skirt_positions(cloth: ClothConfig, waist_height: float) -> np.ndarray:
     fraction = np.linspace(0.0, 1.0, down)
     radius = cloth.waist_radius + flare * fraction
     ring_height = waist_height - drop * fraction
-    x = radius[:, None] * np.cos(angle)[None, :]
-    z = radius[:, None] * np.sin(angle)[None, :]
+    radius = radius[:, None] + pleat_offset(cloth, angle)[None, :]
+    x = radius * np.cos(angle)[None, :]
+    z = radius * np.sin(angle)[None, :]
     y = np.repeat(ring_height[:, None], around, axis=1)
     return np.stack([x, y, z], axis=-1).reshape(-1, 3)
+
+
+def pleat_offset(cloth: ClothConfig, angle: np.ndarray) -> np.ndarray:
+    """The radial offset [m] of a pleated skirt at each column's ``angle``: a triangle wave of
+    ``pleats`` periods between −pleat_depth/2 (an inner fold) and +pleat_depth/2 (an outer
+    fold), so that the fabric zigzags round the waist as box pleats do; zero for other
+    garments. Rest lengths come from these positions, so the pleats' extra fabric is in the
+    pattern (the bending rest state is flat: the pleats are laid, not pressed in)."""
+    if cloth.shape != "pleated":
+        return np.zeros_like(angle)
+    phase = (cloth.pleats * angle / (2 * np.pi)) % 1.0
+    return cloth.pleat_depth * (0.5 - np.abs(2.0 * phase - 1.0))
 
 
 def settling_ripple(garment: "Garment", folds: int = 8, amplitude: float = 0.01) -> np.ndarray:
@@ -258,6 +271,10 @@ def build_garment(cloth: ClothConfig, material: Material, waist_height: float | 
     if periodic and columns < 5:
         raise InputError(f"{source}: cloth.resolution: a {cloth.shape} needs at least 5 "
                          f"particles around, got {columns}")
+    if cloth.shape == "pleated" and columns % (2 * cloth.pleats):
+        raise InputError(f"{source}: cloth.resolution: a pleated skirt needs a multiple of 2 × "
+                         f"pleats = {2 * cloth.pleats} particles around (its folds on "
+                         f"particles), got {columns}")
     if cloth.is_skirt:
         if abs(cloth.skirt_flare) > cloth.length:
             raise InputError(f"{source}: cloth.length: must be at least |hem_radius − "

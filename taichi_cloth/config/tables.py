@@ -82,11 +82,16 @@ class MaterialOverrides:
 
 @dataclass(frozen=True)
 class ClothConfig:
-    shape: str = setting("sheet", "str", choices=("skirt", "circle-skirt", "sheet", "disc"),
-                         doc="skirt: a cone from waist_radius to hem_radius; circle-skirt: "
-                             "cut from a fraction `circle` of an annulus; disc: a flat "
-                             "circular specimen (Cusick drape), rings from waist_radius to "
-                             "hem_radius at height")
+    shape: str = setting("sheet", "str",
+                         choices=("skirt", "circle-skirt", "pleated", "sheet", "disc"),
+                         doc="skirt: a cone (A-line) from waist_radius to hem_radius; "
+                             "circle-skirt: cut from a fraction `circle` of an annulus; "
+                             "pleated: the cone with `pleats` box pleats `pleat_depth` deep; "
+                             "disc: a flat circular specimen (Cusick drape), rings from "
+                             "waist_radius to hem_radius at height")
+    pleats: int = setting(12, "int", low=2, high=512, doc="pleated: pleats around")
+    pleat_depth: float = setting(0.02, "float", low=0.0, low_inclusive=False,
+                                 doc="pleated: m from a pleat's inner to its outer fold")
     resolution: tuple = setting([24, 24], "int_list", low=2, high=4096, length=2,
                                 doc="[around, down] for a skirt, [x, z] for a sheet")
     material: MaterialOverrides = setting(MaterialOverrides(), "table", shorthand="preset",
@@ -124,8 +129,8 @@ class ClothConfig:
 
     @property
     def is_skirt(self) -> bool:
-        """A wrap-around skirt, worn at the waist (``skirt`` or ``circle-skirt``)."""
-        return self.shape in ("skirt", "circle-skirt")
+        """A wrap-around skirt, worn at the waist (``skirt``, ``circle-skirt``, ``pleated``)."""
+        return self.shape in ("skirt", "circle-skirt", "pleated")
 
     @property
     def skirt_flare(self) -> float:
