@@ -69,14 +69,14 @@ class SerialExecutor:
 
 def worker_loop(function, tasks, results) -> None:
     """A local worker process: run ``function`` on each (key, job) from its own ``tasks`` queue
-    and put (key, outcome) on ``results``, until it gets None."""
+    and put (its PID, key, outcome) on ``results``, until it gets None."""
     while (task := tasks.get()) is not None:
         key, job = task
         try:
             outcome = function(job)
         except Exception as error:  # the function's own bug: the run's result says so
             outcome = Lost(f"{type(error).__name__}: {' '.join(str(error).split())}")
-        results.put((key, outcome))
+        results.put((os.getpid(), key, outcome))
 
 
 class LocalExecutor:
@@ -101,7 +101,7 @@ class LocalExecutor:
         busy = {}  # worker → (its task queue, the key of the job it runs)
         idle = []
         by_key = dict(waiting)
-        remaining = len(waiting)
+        finished = set()  # keys whose outcome was yielded
 
         def start_worker():
             tasks = context.Queue()
@@ -111,31 +111,37 @@ class LocalExecutor:
             idle.append((worker, tasks))
 
         try:
-            for _ in range(min(self.workers, remaining)):
+            for _ in range(min(self.workers, len(by_key))):
                 start_worker()
-            while remaining:
+            while len(finished) < len(by_key):
                 while idle and waiting:
-                    worker, tasks = idle.pop()
                     key, job = waiting.pop()
+                    if key in finished:  # its first worker's result came after all
+                        continue
+                    worker, tasks = idle.pop()
                     tasks.put((key, job))
                     busy[worker] = (tasks, key)
                 try:
-                    key, outcome = results.get(timeout=self.POLL_SECONDS)
+                    pid, key, outcome = results.get(timeout=self.POLL_SECONDS)
                 except queue.Empty:
                     for worker in [w for w in busy if not w.is_alive()]:
                         _, key = busy.pop(worker)
                         attempts[key] = attempts.get(key, 0) + 1
                         start_worker()
+                        if key in finished:
+                            continue
                         if attempts[key] < ATTEMPTS:
                             waiting.append((key, by_key[key]))
                         else:
-                            remaining -= 1
+                            finished.add(key)
                             yield by_key[key], Lost(f"its worker process died {ATTEMPTS} times")
                     continue
-                worker = next(w for w, (_, running) in busy.items() if running == key)
-                idle.append((worker, busy.pop(worker)[0]))
-                remaining -= 1
-                yield by_key[key], outcome
+                sender = next((w for w in busy if w.pid == pid), None)
+                if sender is not None:  # (a worker that died after sending is not busy now)
+                    idle.append((sender, busy.pop(sender)[0]))
+                if key not in finished:  # a run retried after its result was sent: once
+                    finished.add(key)
+                    yield by_key[key], outcome
         finally:  # idle workers stop; busy ones (an interrupted sweep) are stopped
             for worker, tasks in idle:
                 tasks.put(None)
