@@ -226,8 +226,10 @@ def run_job(job: SweepJob) -> dict:
     except Exception as error:  # a fault of the program: this run's row says which
         row.update(exit_code=1, error=f"{type(error).__name__}: {' '.join(str(error).split())}")
     row["status"] = STATUS[row["exit_code"]]
-    row.update(stats_columns(folder / "stats.json"))
-    if (folder / "cache").is_dir():
+    ran = row["exit_code"] in (0, UnstableError.exit_code)  # else the folder holds no new run
+    if ran:
+        row.update(stats_columns(folder / "stats.json"))
+    if ran and (folder / "cache").is_dir():
         try:
             from taichi_cloth.output.cache import read_cache
             _, cached = read_cache(folder)
