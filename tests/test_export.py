@@ -16,7 +16,6 @@ from taichi_cloth import cli
 from taichi_cloth.cli import main
 from taichi_cloth.body.dancer import Body
 from taichi_cloth.output.files import write_png
-from taichi_cloth.output.meshes import seam_split
 from taichi_cloth.output.video import video_writer
 from taichi_cloth.cloth.garment import build_garment
 from taichi_cloth.config.scene import load_scene
@@ -241,10 +240,10 @@ def test_xdmf_heavy_data_is_every_frames_geometry_in_hdf5(hula_meshes):
     assert (hula_meshes / "cloth.xdmf").stat().st_size < 200 + 600 * WRITTEN  # references only
 
 
-def test_seam_split_of_a_sheet_changes_nothing():
+def test_uv_layout_of_a_sheet_changes_nothing():
     scene = load_scene("sheet", ("cloth.resolution=[5,4]",))
     garment = build_garment(scene.cloth, scene.material, None, scene.path)
-    source, uvs, triangles = seam_split(garment)
+    source, uvs, triangles = garment.uv_layout()
     np.testing.assert_array_equal(source, np.arange(20))
     np.testing.assert_array_equal(triangles, garment.triangles)
     assert uvs is garment.uvs

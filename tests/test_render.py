@@ -229,3 +229,18 @@ def test_shipped_print_is_small_and_tiles_around_the_skirt():
     seam = np.abs(image[:, 0] - image[:, -1]).mean()
     inside = np.abs(image[:, 1:] - image[:, :-1]).mean()
     assert seam < 3 * inside
+
+
+def test_a_mesh_garment_is_drawn_as_it_is_split_at_its_uv_seams():
+    scene = load_scene("hilo")
+    garment = build_garment(scene.cloth, scene.material, None, scene.path)
+    surface = ClothSurface(garment, subdivision=3)  # a mesh is not refined
+    source, uvs, triangles = garment.uv_layout()
+    assert surface.vertex_count == len(source) > garment.particle_count  # four gores' seams
+    surface.update(upload(garment.positions))
+    np.testing.assert_allclose(surface.points(), garment.positions[source], atol=1e-6)
+    normals = surface.normals.to_numpy()
+    np.testing.assert_allclose(np.linalg.norm(normals, axis=-1), 1.0, atol=1e-5)
+    outward = np.sum(normals[:, [0, 2]] * surface.points()[:, [0, 2]], axis=-1)
+    assert (outward > 0).all()  # the cone's quads are wound outwards
+    np.testing.assert_array_equal(surface.uvs, uvs)

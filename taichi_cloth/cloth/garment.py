@@ -1,11 +1,14 @@
 """Garment meshes built in NumPy: particles, UVs, triangles, springs per family, masses, pins.
 
-Two shapes, both regular grids of ``columns × rows`` particles, index = row · columns + column
-(row 0 is the top: the waist of a skirt, the top edge of a sheet):
+The library's shapes are regular grids of ``columns × rows`` particles, index = row · columns +
+column (row 0 is the top: the waist of a skirt, the top edge of a sheet):
 
 - a sheet, hanging in the x-y plane (``vertical``) or lying in the x-z plane (``horizontal``);
 - a skirt: a conical tube from the waist circle down to the hem circle, periodic around, so the
   seam closes (column ``columns − 1`` connects to column 0).
+
+A garment from a file (``cloth.shape = "mesh"``) is any triangle or quad mesh
+(``mesh_garment.py``); it has no grid (columns = rows = 0).
 
 Spring families (seed §2.1, Fig. 1): stretch between grid neighbours, shear across each cell's
 diagonals, bend between skip-one neighbours. Per-spring stiffness follows ``materials`` from the
@@ -35,7 +38,8 @@ class Garment:
     the unit warp direction in the rest shape at each particle (down the rows, turned by the bias
     towards the columns); hinges (H,4): the bending stencils of the triangles
     (``topology.hinge_stencils``); hinge_rigidity (H,): each hinge's B [N·m] from the warp and
-    weft rigidity (``hinge_rigidity``).
+    weft rigidity (``hinge_rigidity``); corner_uvs (T, 3, 2): a mesh garment's UVs per triangle
+    corner (a vertex on a UV seam has several), None on a grid, whose ``uvs`` are per particle.
     """
 
     positions: np.ndarray
@@ -53,6 +57,12 @@ class Garment:
     hinges: np.ndarray = field(default_factory=lambda: np.zeros((0, 4), np.int32))
     hinge_rigidity: np.ndarray = field(default_factory=lambda: np.zeros(0))
     start_offset: np.ndarray | None = None
+    corner_uvs: np.ndarray | None = None
+
+    @property
+    def is_grid(self) -> bool:
+        """Whether the particles form the ``columns × rows`` grid (not a mesh from a file)."""
+        return self.columns * self.rows == len(self.positions) > 0
 
     @property
     def start_positions(self) -> np.ndarray:
@@ -71,6 +81,31 @@ class Garment:
     @property
     def spring_count(self) -> int:
         return sum(len(s) for s in self.springs.values())
+
+    def uv_layout(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The garment's vertices for a UV-mapped surface: (source particle (N',), uvs (N', 2),
+        triangles (T, 3)), split where the UVs have a seam, so that no triangle's UVs jump. A
+        mesh garment has one vertex per distinct (particle, UV) of its triangles' corners; a
+        skirt's column 0 is duplicated at u = 1 (one vertex per row, appended) and the seam
+        triangles use the copies; other grids need no split."""
+        count = len(self.positions)
+        if self.corner_uvs is not None:
+            keys = np.concatenate([self.triangles.reshape(-1, 1),
+                                   self.corner_uvs.reshape(-1, 2)], axis=1)
+            unique, corner_vertex = np.unique(keys, axis=0, return_inverse=True)
+            return (unique[:, 0].astype(np.int64), unique[:, 1:],
+                    corner_vertex.reshape(-1, 3).astype(np.int32))
+        if not self.periodic:
+            return np.arange(count), self.uvs, self.triangles
+        columns = self.columns
+        first_column = np.arange(self.rows) * columns
+        u_period = columns * (self.uvs[1, 0] - self.uvs[0, 0])
+        column = self.triangles % columns
+        wraps = (column == columns - 1).any(axis=1)[:, None] & (column == 0)
+        triangles = self.triangles.copy()
+        triangles[wraps] = count + triangles[wraps] // columns
+        uvs = np.concatenate([self.uvs, self.uvs[first_column] + [u_period, 0.0]])
+        return np.concatenate([np.arange(count), first_column]), uvs, triangles
 
 
 def sheet_positions(cloth: ClothConfig) -> np.ndarray:
@@ -150,25 +185,43 @@ def settling_ripple(garment: "Garment", folds: int = 8, amplitude: float = 0.01)
     ``folds`` folds when it settles: amplitude·s²·sin(folds·θ) with s the fraction of the way
     from the first row (the waist, s = 0) to the last (the hem, s = 1), radial about the
     vertical axis, and on a cone flatter than 45° (a circle skirt) turned towards the vertical
-    by the cone's own slope, (Δr·ŷ − Δy·r̂)/|(Δr, Δy)| for the slant (Δr, Δy) from waist to
+    by the cone's own slant, (Δr·ŷ − Δy·r̂)/|(Δr, Δy)| for the slant (Δr, Δy) from waist to
     hem, so that a flat circle is pushed out of its plane; zero for other garments. A cone cut
-    from flat fabric is an equilibrium, unstable but exact: without a push it would stand."""
-    if not garment.periodic:
-        return np.zeros_like(garment.positions)
-    columns, rows = garment.columns, garment.rows
-    angle = 2 * np.pi * np.arange(columns) / columns
-    fraction = np.linspace(0.0, 1.0, rows)
-    outward = np.stack([np.cos(angle), np.zeros(columns), np.sin(angle)], axis=1)
-    grid = garment.positions.reshape(rows, columns, 3)
-    slant = grid[-1] - grid[0]
-    radial_run, drop = np.einsum("ck,ck->c", slant, outward), -slant[:, 1]
+    from flat fabric is an equilibrium, unstable but exact: without a push it would stand.
+    A mesh garment wraps around when its pins circle the vertical axis through their centre
+    (no gap of a quarter turn between them): θ is then the angle about that axis, s the
+    height below the pins over the garment's drop, and the slant each particle's own."""
+    if garment.is_grid:
+        if not garment.periodic:
+            return np.zeros_like(garment.positions)
+        columns, rows = garment.columns, garment.rows
+        angle = np.tile(2 * np.pi * np.arange(columns) / columns, rows)
+        fraction = np.repeat(np.linspace(0.0, 1.0, rows), columns)
+        grid = garment.positions.reshape(rows, columns, 3)
+        slant = np.tile(grid[-1] - grid[0], (rows, 1))
+    else:
+        pins = garment.positions[garment.pinned]
+        centre = pins.mean(axis=0) if len(pins) else np.zeros(3)
+        pin_angle = np.sort(np.arctan2(pins[:, 2] - centre[2], pins[:, 0] - centre[0]))
+        gaps = np.diff(np.concatenate([pin_angle, pin_angle[:1] + 2 * np.pi]))
+        if len(pins) < 3 or gaps.max() > np.pi / 2:
+            return np.zeros_like(garment.positions)
+        relative = garment.positions - centre
+        angle = np.arctan2(relative[:, 2], relative[:, 0])
+        drop = np.maximum(-relative[:, 1], 0.0)
+        fraction = drop / max(drop.max(), 1e-12)
+        pin_radius = np.mean(np.hypot(pins[:, 0] - centre[0], pins[:, 2] - centre[2]))
+        slant = relative.copy()
+        slant[:, [0, 2]] -= pin_radius * np.stack([np.cos(angle), np.sin(angle)], axis=1)
+    outward = np.stack([np.cos(angle), np.zeros_like(angle), np.sin(angle)], axis=1)
+    radial_run, drop = np.einsum("nk,nk->n", slant, outward), -slant[:, 1]
     direction = outward.copy()
     flat = radial_run > drop  # flatter than 45°: push across the cone
     direction[flat] = (drop[flat, None] * outward[flat]
                        + radial_run[flat, None] * np.array([0.0, 1.0, 0.0]))
     direction /= np.linalg.norm(direction, axis=1, keepdims=True)
-    size = amplitude * fraction[:, None] ** 2 * np.sin(folds * angle)[None, :]
-    return (size[:, :, None] * direction[None, :, :]).reshape(-1, 3)
+    size = amplitude * fraction ** 2 * np.sin(folds * angle)
+    return size[:, None] * direction
 
 
 def disc_positions(cloth: ClothConfig) -> np.ndarray:
@@ -266,6 +319,9 @@ def build_garment(cloth: ClothConfig, material: Material, waist_height: float | 
                   source: str = "") -> Garment:
     """Build the garment a scene's ``[cloth]`` describes. ``waist_height`` places a skirt (the
     body's waist when there is one, else ``cloth.waist_height``)."""
+    if cloth.shape == "mesh":
+        from taichi_cloth.cloth.mesh_garment import build_mesh_garment  # it builds on this module
+        return build_mesh_garment(cloth, material, source)
     columns, rows = cloth.resolution
     periodic = cloth.is_skirt or cloth.shape == "disc"
     if periodic and columns < 5:

@@ -199,6 +199,16 @@ def scene_from_document(path: Path, raw: dict, overridden: list[str] = ()) -> Sc
     if cloth.is_skirt and cloth.pin not in ("waist", "none"):
         raise ctx.error("cloth.pin", f"a skirt is pinned at \"waist\" or \"none\", got "
                                      f"{cloth.pin!r}")
+    if (cloth.shape == "mesh") != (cloth.pin in ("group", "vertices")) and cloth.pin != "none":
+        raise ctx.error("cloth.pin", f"pin = {cloth.pin!r} does not apply to shape = "
+                                     f"{cloth.shape!r}; a mesh is pinned at \"group\", "
+                                     f"\"vertices\" or \"none\"")
+    if cloth.pin == "group" and not cloth.pin_groups:
+        raise ctx.error("cloth.pin_groups", "pin = \"group\" needs the groups, e.g. "
+                                            "pin_groups = [\"waistband\"]")
+    if cloth.pin == "vertices" and not cloth.pin_vertices:
+        raise ctx.error("cloth.pin_vertices", "pin = \"vertices\" needs the vertex numbers, "
+                                              "e.g. pin_vertices = [1, 2, 3]")
     if not cloth.springs:
         raise ctx.error("cloth.springs", "needs at least one spring family, e.g. [\"stretch\"]")
     scene = Scene(

@@ -83,12 +83,19 @@ class MaterialOverrides:
 @dataclass(frozen=True)
 class ClothConfig:
     shape: str = setting("sheet", "str",
-                         choices=("skirt", "circle-skirt", "pleated", "sheet", "disc"),
+                         choices=("skirt", "circle-skirt", "pleated", "sheet", "disc", "mesh"),
                          doc="skirt: a cone (A-line) from waist_radius to hem_radius; "
                              "circle-skirt: cut from a fraction `circle` of an annulus; "
                              "pleated: the cone with `pleats` box pleats `pleat_depth` deep; "
                              "disc: a flat circular specimen (Cusick drape), rings from "
-                             "waist_radius to hem_radius at height")
+                             "waist_radius to hem_radius at height; mesh: the triangles "
+                             "and quads of the OBJ file `mesh`")
+    mesh: str = setting("", "str", doc="mesh: an OBJ file, relative to the scene file; its "
+                                       "coordinates y up, in units of mesh_scale")
+    mesh_scale: float = setting(1.0, "float", low=0.0, low_inclusive=False,
+                                doc="mesh: metres per file unit (0.01 for centimetres)")
+    mesh_offset: tuple = setting([0.0, 0.0, 0.0], "float_list", length=3,
+                                 doc="mesh: m added to every vertex after scaling")
     pleats: int = setting(12, "int", low=2, high=512, doc="pleated: pleats around")
     pleat_depth: float = setting(0.02, "float", low=0.0, low_inclusive=False,
                                  doc="pleated: m from a pleat's inner to its outer fold")
@@ -97,9 +104,17 @@ class ClothConfig:
     material: MaterialOverrides = setting(MaterialOverrides(), "table", shorthand="preset",
                                           doc="a preset name, or a table of overrides")
     pin: str = setting("top-edge", "str",
-                       choices=("waist", "top-edge", "left-edge", "corners", "clamp", "none"),
+                       choices=("waist", "top-edge", "left-edge", "corners", "clamp", "group",
+                                "vertices", "none"),
                        doc="left-edge: a sheet's first column (a flag's hoist); clamp: a "
-                           "disc's particles within clamp_radius of its centre")
+                           "disc's particles within clamp_radius of its centre; group, "
+                           "vertices: a mesh's pin_groups or pin_vertices (carried by the "
+                           "dancer's pelvis when there is one)")
+    pin_groups: tuple = setting([], "str_list", doc="mesh, pin = \"group\": OBJ group (g) or "
+                                                    "object (o) names whose vertices are held")
+    pin_vertices: tuple = setting([], "int_list", low=1,
+                                  doc="mesh, pin = \"vertices\": vertex numbers as in the OBJ "
+                                      "file (from 1)")
     pin_rows: int = setting(1, "int", low=1, high=4096,
                             doc="top-edge: rows held (2 clamp the edge's slope too)")
     clamp_radius: float = setting(0.09, "float", low=0.0, doc="disc, pin = \"clamp\": m")

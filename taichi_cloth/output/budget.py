@@ -15,6 +15,8 @@ import math
 import os
 from dataclasses import dataclass
 
+from taichi_cloth.cloth.mesh_garment import mesh_path
+from taichi_cloth.cloth.obj_mesh import count_vertices
 from taichi_cloth.errors import InputError
 
 BASE_BYTES = 2.5e8  # B
@@ -46,8 +48,13 @@ def available_memory() -> float:
 
 def check_memory(scene, limits: RunLimits) -> None:
     """Before allocation: InputError when the cloth needs more memory than allowed."""
-    columns, rows = scene.cloth.resolution
-    particles = columns * rows
+    if scene.cloth.shape == "mesh":
+        particles = count_vertices(mesh_path(scene.cloth, scene.path))
+        what_cloth = f"cloth.mesh {scene.cloth.mesh}"
+    else:
+        columns, rows = scene.cloth.resolution
+        particles = columns * rows
+        what_cloth = f"cloth.resolution [{columns}, {rows}]"
     need = BASE_BYTES + particles * PARTICLE_BYTES[scene.simulation.precision]
     if limits.max_memory_gb is not None:
         allowed, what = limits.max_memory_gb * 1e9, f"--max-memory {limits.max_memory_gb:g} GB"
@@ -55,7 +62,7 @@ def check_memory(scene, limits: RunLimits) -> None:
         allowed = MEMORY_SHARE * available_memory()
         what = f"{MEMORY_SHARE:.0%} of this machine's available memory"
     if need > allowed:
-        raise InputError(f"cloth.resolution [{columns}, {rows}]: {particles:,} particles need "
+        raise InputError(f"{what_cloth}: {particles:,} particles need "
                          f"about {need / 1e9:.1f} GB, more than {allowed / 1e9:.1f} GB ({what}); "
                          f"lower it, or pass --max-memory {math.ceil(need / 1e9)} to run it")
 

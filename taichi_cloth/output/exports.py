@@ -8,7 +8,7 @@ from pathlib import Path
 
 from taichi_cloth.config.scene import Scene
 from taichi_cloth.output.files import copy_file
-from taichi_cloth.output.meshes import MeshSeries, seam_split, write_material
+from taichi_cloth.output.meshes import MeshSeries, write_material
 
 MESH_DIR = "meshes"
 
@@ -26,7 +26,7 @@ def mesh_series(scene: Scene, garment, body, directory: Path, formats,
     if not formats:
         return []
     folder = directory / MESH_DIR
-    source, uvs, triangles = seam_split(garment)
+    source, uvs, triangles = garment.uv_layout()
     image = texture_path(scene)
     if "obj" in formats or "pc2" in formats:
         if image is not None:

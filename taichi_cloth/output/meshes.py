@@ -11,24 +11,6 @@ import numpy as np
 from taichi_cloth.output.files import atomic_path
 
 
-def seam_split(garment):
-    """The garment's vertices for a UV-mapped file: (source particle (N',), uvs (N', 2),
-    triangles (T, 3)). A skirt's column 0 is duplicated once more at u = 1 (one vertex per row,
-    appended) and the seam triangles use the copies, so no triangle's UVs wrap from 1 back to 0."""
-    count = len(garment.positions)
-    if not garment.periodic:
-        return np.arange(count), garment.uvs, garment.triangles
-    columns = garment.columns
-    first_column = np.arange(garment.rows) * columns
-    u_period = columns * (garment.uvs[1, 0] - garment.uvs[0, 0])
-    column = garment.triangles % columns
-    wraps = (column == columns - 1).any(axis=1)[:, None] & (column == 0)
-    triangles = garment.triangles.copy()
-    triangles[wraps] = count + triangles[wraps] // columns
-    uvs = np.concatenate([garment.uvs, garment.uvs[first_column] + [u_period, 0.0]])
-    return np.concatenate([np.arange(count), first_column]), uvs, triangles
-
-
 def obj_lines(template: str, values: np.ndarray) -> str:
     """One ``template`` line per row of ``values``, formatted in one go (a single %-format of
     the repeated template: ~4× faster than ``numpy.savetxt``, the same text)."""
@@ -152,7 +134,7 @@ class MeshSeries:
     """One object's meshes, frame after frame, in each of ``formats`` under ``directory``:
     ``<name>_00000.obj|ply|vtu`` per frame, and for the run (written by ``finish``)
     ``<name>.xdmf`` and, with VTU, the collection ``<name>.pvd`` of every frame from 0 (a
-    resumed run lists the earlier ones it finds on disk, frame k at k/``fps`` s). ``uv_layout`` = (source (V',), uvs (V', 2), triangles) from ``seam_split``
+    resumed run lists the earlier ones it finds on disk, frame k at k/``fps`` s). ``uv_layout`` = (source (V',), uvs (V', 2), triangles) from ``Garment.uv_layout``
     gives the OBJ files texture coordinates and the material ``<name>.mtl``."""
 
     def __init__(self, directory: Path, name: str, formats, triangles: np.ndarray,

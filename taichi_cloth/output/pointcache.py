@@ -2,7 +2,7 @@
 for Blender's Mesh Cache modifier (and 3ds Max, Houdini, Maya, which read the same format).
 
 ``meshes/cloth.obj`` is the first frame written, in the seam-split layout with UVs and the
-material (``meshes.seam_split``, ``meshes.write_obj``); ``meshes/cloth.pc2`` holds every frame's
+material (``Garment.uv_layout``, ``meshes.write_obj``); ``meshes/cloth.pc2`` holds every frame's
 positions of those same vertices, in the same order. The PC2 layout (little-endian): the
 12 bytes ``POINTCACHE2\\0``, int32 version 1, int32 point count, float32 start frame, float32
 sampling (frames per sample, 1), int32 sample count, then per sample the points as float32
@@ -35,7 +35,7 @@ class PointCache:
     """The cloth's frames, gathered in memory and written whole by ``finish``."""
 
     def __init__(self, directory: Path, uv_layout, material: str = ""):
-        """uv_layout: (source particle (V,), uvs (V, 2), triangles (T, 3)) from ``seam_split``;
+        """uv_layout: (source particle (V,), uvs (V, 2), triangles (T, 3)) from ``Garment.uv_layout``;
         ``material``: the OBJ's material name (its .mtl beside it), "" for none."""
         self.directory = Path(directory)
         self.source, self.uvs, self.triangles = uv_layout

@@ -6,7 +6,7 @@ Description.
 
 - ``Cloth``: a UsdGeomMesh whose ``points`` and ``normals`` (per vertex: the area-weighted sum
   of the adjacent triangles' normals, normalised) are time-sampled at every frame, with its
-  triangles, its UVs as ``primvars:st`` (the seam-split layout of ``meshes.seam_split``, so no
+  triangles, its UVs as ``primvars:st`` (the seam-split layout of ``Garment.uv_layout``, so no
   triangle's UVs wrap), ``extent`` per frame, and a UsdPreviewSurface material that reads the
   scene's texture (copied beside the file) or has the cloth colour;
 - ``Body`` (when the scene has one): every collision and display capsule as a UsdGeomCapsule
@@ -67,7 +67,7 @@ class UsdAnimation:
     def __init__(self, target: Path, uv_layout, fps: float, color, texture: str = "",
                  body=None):
         """uv_layout: (source particle (V,), uvs (V, 2), triangles (T, 3)) of the cloth's
-        seam-split layout (``meshes.seam_split``); ``texture``: an image file name beside
+        seam-split layout (``Garment.uv_layout``); ``texture``: an image file name beside
         ``target`` ("" for the plain ``color``, RGB in [0, 1]); ``body``: the scene's
         ``body.dancer.Body`` or prop (None without one)."""
         Usd, UsdGeom, UsdShade, Sdf, Gf, Vt = self.pxr = import_pxr()

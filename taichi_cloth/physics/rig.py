@@ -52,7 +52,9 @@ class BodyRig:
             self.body = Body(config.motion, config.tempo, config.amplitude, config.capsules,
                              config.scale, config.ease_in)
         self.frame_duration = 1.0 / scene.scene.fps  # [s]
-        self.carries_pins = scene.cloth.pin == "waist"  # other pins stay where they are
+        # A skirt's waist and a mesh garment's pins ride on the pelvis; other pins stay put.
+        self.carries_pins = scene.cloth.pin == "waist" or (
+            scene.cloth.pin in ("group", "vertices") and config.capsules not in PROPS)
         self.capsule_count = self.body.capsule_count
         self.waist_height = self.body.waist_height
         self.control = None

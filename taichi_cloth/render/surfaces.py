@@ -3,14 +3,15 @@ capsule meshes, the floor. Each is built once in NumPy into f32 Taichi fields (v
 normals, colours in [0, 1], flat triangle indices) that a kernel updates per frame; none of them
 touches the simulation.
 
-Cloth: the particle grid is refined ``subdivision`` times per spacing by a tensor-product
+Cloth: a grid garment's particles are refined ``subdivision`` times per spacing by a tensor-product
 Catmull-Rom spline, p(s, t) = Σ_a Σ_b w_a(t) w_b(s) x[row + a, column + b] over the 4 × 4
 surrounding particles, with
     w_−1 = (−s³ + 2s² − s)/2, w_0 = (3s³ − 5s² + 2)/2, w_1 = (−3s³ + 4s² + s)/2, w_2 = (s³ − s²)/2,
 which passes through every particle and is C¹ between them (columns wrap on a skirt; at an open
 edge the end particle is repeated). Normals are gathered per vertex as the sum of the adjacent
 triangles' area-weighted normals ½ (p1 − p0) × (p2 − p0), normalised. UVs are linear in the grid,
-as the garment's are, so the texture sampled at them moves with the fabric.
+as the garment's are, so the texture sampled at them moves with the fabric. A mesh garment (from a
+file) is drawn as its own triangles, with its own UVs.
 
 Body: one unit capsule template, directions n on the unit sphere and an end flag s ∈ {0, 1}
 (hemisphere at a or at b), placed per capsule as p = a + s (b − a) + r F n with F an orthonormal
@@ -96,36 +97,37 @@ class Surface:
 
 @ti.data_oriented
 class ClothSurface(Surface):
-    """The cloth refined into a smooth render mesh; ``update(x)`` follows the particles."""
+    """The cloth as a render mesh whose vertex i is Σ_k weight[i, k]·x[source[i, k]] over
+    ``taps`` particles; ``update(x)`` follows the particles. A grid garment is refined into the
+    smooth spline surface (16 taps); a mesh garment is drawn as it is (1 tap), split at its UV
+    seams (``Garment.uv_layout``)."""
 
     def __init__(self, garment: Garment, subdivision: int):
-        periodic = garment.periodic
-        column_position, column_index, column_weight = spline_stencil(
-            garment.columns, subdivision, periodic)
-        row_position, row_index, row_weight = spline_stencil(garment.rows, subdivision, False)
-        self.columns, self.rows = len(column_position), len(row_position)
-        super().__init__(self.columns * self.rows, grid_triangles(self.columns, self.rows, periodic))
-        source = row_index[:, None, :, None] * garment.columns + column_index[None, :, None, :]
-        weight = row_weight[:, None, :, None] * column_weight[None, :, None, :]
-        self.source = ti.field(ti.i32, (self.vertex_count, 16))
-        self.weight = ti.field(ti.f32, (self.vertex_count, 16))
-        self.source.from_numpy(source.reshape(self.vertex_count, 16).astype(np.int32))
-        self.weight.from_numpy(weight.reshape(self.vertex_count, 16).astype(np.float32))
+        self.columns = self.rows = 0  # the render grid's size; none for a mesh garment
+        if garment.is_grid:
+            source, weight, triangles, self.uvs, self.uv_footprint, (self.columns, self.rows) = \
+                spline_surface(garment, subdivision)
+        else:
+            particle, self.uvs, triangles = garment.uv_layout()
+            source, weight = particle[:, None], np.ones((len(particle), 1))
+            corners = self.uvs[triangles]
+            steps = np.abs(np.roll(corners, -1, axis=1) - corners).reshape(-1, 2)
+            self.uv_footprint = tuple(np.mean(steps, axis=0))
+        self.taps = source.shape[1]
+        super().__init__(len(source), triangles)
+        self.source = ti.field(ti.i32, (self.vertex_count, self.taps))
+        self.weight = ti.field(ti.f32, (self.vertex_count, self.taps))
+        self.source.from_numpy(source.astype(np.int32))
+        self.weight.from_numpy(weight.astype(np.float32))
         self.triangle_start, self.triangle_item = triangle_gather_fields(self.triangles,
                                                                          self.vertex_count)
-        u_step = garment.uvs[1, 0] - garment.uvs[0, 0]
-        v_step = garment.uvs[garment.columns, 1] - garment.uvs[0, 1]
-        uu, vv = np.meshgrid(garment.uvs[0, 0] + column_position * u_step,
-                             garment.uvs[0, 1] + row_position * v_step)
-        self.uvs = np.stack([uu, vv], axis=-1).reshape(-1, 2)
-        self.uv_footprint = (abs(u_step) / subdivision, abs(v_step) / subdivision)
 
     @ti.kernel
     def update(self, x: ti.template()):
         """Render vertices from the particle positions ``x`` [m], then their normals."""
         for i in range(self.vertex_count):
             p = ti.Vector.zero(ti.f32, 3)
-            for k in ti.static(range(16)):
+            for k in ti.static(range(self.taps)):
                 p += self.weight[i, k] * ti.cast(x[self.source[i, k]], ti.f32)
             self.vertices[i] = p
         for i in range(self.vertex_count):
@@ -136,6 +138,26 @@ class ClothSurface(Surface):
                 n += (self.vertices[self.indices[corner + 1]] - p0).cross(
                     self.vertices[self.indices[corner + 2]] - p0)
             self.normals[i] = n / ti.max(n.norm(), 1e-12)
+
+
+def spline_surface(garment: Garment, subdivision: int):
+    """A grid garment refined ``subdivision`` times by the Catmull-Rom surface: (source (V, 16),
+    weight (V, 16), triangles (T, 3), uvs (V, 2), uv footprint (du, dv) of a render cell,
+    (columns, rows) of the render grid)."""
+    periodic = garment.periodic
+    column_position, column_index, column_weight = spline_stencil(
+        garment.columns, subdivision, periodic)
+    row_position, row_index, row_weight = spline_stencil(garment.rows, subdivision, False)
+    columns, rows = len(column_position), len(row_position)
+    source = row_index[:, None, :, None] * garment.columns + column_index[None, :, None, :]
+    weight = row_weight[:, None, :, None] * column_weight[None, :, None, :]
+    u_step = garment.uvs[1, 0] - garment.uvs[0, 0]
+    v_step = garment.uvs[garment.columns, 1] - garment.uvs[0, 1]
+    uu, vv = np.meshgrid(garment.uvs[0, 0] + column_position * u_step,
+                         garment.uvs[0, 1] + row_position * v_step)
+    return (source.reshape(-1, 16), weight.reshape(-1, 16),
+            grid_triangles(columns, rows, periodic), np.stack([uu, vv], axis=-1).reshape(-1, 2),
+            (abs(u_step) / subdivision, abs(v_step) / subdivision), (columns, rows))
 
 
 @ti.data_oriented
