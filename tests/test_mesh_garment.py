@@ -243,3 +243,15 @@ def test_the_shipped_hilo_skirt_dances_with_its_waistband_on_the_pelvis():
 def triangle_area(garment) -> float:
     p0, p1, p2 = (garment.positions[garment.triangles[:, k]] for k in range(3))
     return float(0.5 * np.linalg.norm(np.cross(p1 - p0, p2 - p0), axis=1).sum())
+
+
+def test_a_mesh_tangled_at_rest_is_a_warning_and_still_runs(tmp_path, capsys):
+    path = tmp_path / "crossed.obj"  # two squares, the second piercing the first
+    path.write_text("v 0 1 0\nv 1 1 0\nv 1 1 1\nv 0 1 1\n"
+                    "v 0.5 0.5 0.5\nv 0.5 1.5 0.5\nv 0.6 1.5 0.9\nv 0.6 0.5 0.9\n"
+                    "f 1 2 3 4\nf 5 6 7 8\n")
+    scene = load_scene("sheet", ("cloth.shape=mesh", f"cloth.mesh=\"{path}\"",
+                                 "cloth.pin=vertices", "cloth.pin_vertices=[1, 2]"))
+    simulation = Simulation(scene)
+    assert "pairs of its triangles pass through each other at rest" in capsys.readouterr().err
+    assert simulation.stats(simulation.run(1))["finite"]

@@ -19,6 +19,7 @@ frame is written.
 """
 
 import dataclasses
+import sys
 import time
 from dataclasses import dataclass
 
@@ -72,6 +73,12 @@ class Simulation:
         self.surface_edges = self.garment.edges
         self.intersections = IntersectionCounter(self.garment.triangles,
                                                  self.garment.particle_count)
+        if not self.garment.is_grid:  # a mesh from a file: say if it is tangled at rest
+            tangled = self.intersections.count(self.garment.positions)
+            if tangled:
+                print(f"warning: {scene.path}: cloth.mesh: {tangled} pairs of its triangles pass "
+                      f"through each other at rest; the cloth starts tangled there",
+                      file=sys.stderr)
         self.guards_crossings = "self_collision" in scene.effects  # ``guarded_frame``
         self._crossings = None  # crossing pairs in the current state, when counted
         self.settle_report = None  # what ``settling.settle`` did (a resumed run copies it back)
