@@ -143,13 +143,22 @@ def test_velocities_match_central_differences(capsules, t):
     body, step = Body(capsules=capsules), 1e-5
     before, now, after = body.pose(t - step), body.pose(t), body.pose(t + step)
     for position, velocity in (("capsule_a", "capsule_velocity_a"), ("capsule_b", "capsule_velocity_b"),
-                               ("pelvis_position", "pelvis_velocity")):
+                               ("pelvis_position", "pelvis_velocity"),
+                               ("chest_position", "chest_velocity")):
         difference = (getattr(after, position) - getattr(before, position)) / (2.0 * step)
         np.testing.assert_allclose(getattr(now, velocity), difference, atol=1e-7)
-    spin = (after.pelvis_rotation - before.pelvis_rotation) / (2.0 * step) @ now.pelvis_rotation.T
-    spin = 0.5 * (spin - spin.T)
-    np.testing.assert_allclose(now.pelvis_angular_velocity, [spin[2, 1], spin[0, 2], spin[1, 0]], atol=1e-7)
-    np.testing.assert_allclose(now.pelvis_rotation @ now.pelvis_rotation.T, np.eye(3), atol=1e-12)
+    for frame in ("pelvis", "chest"):
+        rotation = getattr(now, f"{frame}_rotation")
+        spin = (getattr(after, f"{frame}_rotation") - getattr(before, f"{frame}_rotation")) \
+            / (2.0 * step) @ rotation.T
+        spin = 0.5 * (spin - spin.T)
+        np.testing.assert_allclose(getattr(now, f"{frame}_angular_velocity"),
+                                   [spin[2, 1], spin[0, 2], spin[1, 0]], atol=1e-7)
+        np.testing.assert_allclose(rotation @ rotation.T, np.eye(3), atol=1e-12)
+    shoulders = now.display_capsule_a[2:4]  # fixed in the chest frame
+    local = (shoulders - now.chest_position) @ now.chest_rotation
+    np.testing.assert_allclose(local, (body.pose(0.0).display_capsule_a[2:4]
+                                       - body.pose(0.0).chest_position), atol=1e-12)
 
 
 @pytest.mark.parametrize("t", [1.0, 1.37, 2.9, 4.44, 6.0])

@@ -320,3 +320,60 @@ def test_a_pleated_skirt_zigzags_round_its_waist_with_the_fabric_of_its_pleats()
     assert np.flatnonzero(garment.pinned).tolist() == list(range(12))  # held at the waist
     with pytest.raises(InputError, match="multiple of 2 × pleats"):
         garment_of("skirt", "cloth.shape='pleated'", "cloth.pleats=7", "cloth.resolution=[24, 5]")
+
+
+DRESS = ("cloth.shape=dress", "cloth.pin=shoulders", "cloth.resolution=[32, 18]",
+         "cloth.hem_radius=0.38", "cloth.length=0.5")
+
+
+def test_dress_is_one_outward_manifold_piece_of_the_right_area():
+    from taichi_cloth.cloth.dress import STRAP_RISE, dress_mesh
+    from taichi_cloth.cloth.obj_mesh import check_mesh, winding_conflicts
+    scene, garment = garment_of("hula", *DRESS)
+    cloth = scene.cloth
+    mesh, _ = dress_mesh(cloth, cloth.waist_height, "dress")
+    check_mesh(mesh, "dress")  # no degenerate faces, no edge of three faces, no loose vertex
+    assert winding_conflicts(mesh) == 0
+    # area: the bodice's prism and the skirt's frustum (polygons of 32 sides), and two straps,
+    # each a band of half ellipses (z cos φ, STRAP_RISE sin φ) as wide as its chord across
+    around, top = cloth.resolution[0], cloth.waist_height + cloth.bodice_height
+    polygon = around * math.sin(math.pi / around) / math.pi  # perimeter over the circle's
+    flare = cloth.hem_radius - cloth.bodice_radius
+    tube = polygon * 2 * math.pi * (cloth.bodice_radius * cloth.bodice_height
+                                    + (cloth.bodice_radius + flare / 2) * cloth.length)
+    p0, p1, p2 = (garment.positions[garment.triangles[:, k]] for k in range(3))
+    area, centre = 0.5 * np.linalg.norm(np.cross(p1 - p0, p2 - p0), axis=1), (p0 + p1 + p2) / 3
+    assert area[centre[:, 1] < top].sum() == pytest.approx(tube, rel=0.002)
+    apex = garment.positions[garment.pinned]
+    strap_x = np.unique(np.round(apex[apex[:, 0] > 0, 0], 12))  # a strap's columns
+    phi = np.linspace(0, math.pi, 20001)[:, None]
+    strips = 0.0
+    for x0, x1 in zip(strap_x[:-1], strap_x[1:]):  # the band between two columns' ellipses
+        z0, z1 = (math.sqrt(cloth.bodice_radius ** 2 - x ** 2) for x in (x0, x1))
+        tangent = np.hstack([0 * phi, STRAP_RISE * np.cos(phi), -0.5 * (z0 + z1) * np.sin(phi)])
+        across = np.hstack([np.full_like(phi, x1 - x0), 0 * phi, (z1 - z0) * np.cos(phi)])
+        strips += np.trapezoid(np.linalg.norm(np.cross(tangent, across), axis=1), phi[:, 0])
+    # the strap's chords, ~4.5 cm at this resolution, cut its turn over the shoulder (a 5 cm
+    # radius at the apex) by ~4 %
+    assert area[centre[:, 1] > top].sum() == pytest.approx(2 * strips, rel=0.06)
+    assert garment.mass.sum() == pytest.approx(scene.material.density * area.sum())
+    # the triangles face outwards: from the axis on the tube
+    normal = np.cross(p1 - p0, p2 - p0)
+    on_tube = centre[:, 1] < top
+    assert (np.einsum("tk,tk->t", normal[on_tube][:, [0, 2]], centre[on_tube][:, [0, 2]]) > 0).all()
+
+
+def test_dress_hangs_from_its_straps_with_the_warp_down_the_dress():
+    scene, garment = garment_of("hula", *DRESS)
+    from taichi_cloth.cloth.dress import STRAP_RISE
+    pins = garment.positions[garment.pinned]
+    assert np.count_nonzero(pins[:, 0] > 0) == np.count_nonzero(pins[:, 0] < 0) > 6
+    top = scene.cloth.waist_height + scene.cloth.bodice_height
+    assert pins[:, 1].min() > top + 0.5 * STRAP_RISE  # the straps over the shoulders
+    np.testing.assert_allclose(np.sort(pins[:, 0]), np.sort(-pins[:, 0]), atol=1e-12)  # mirrored
+    tube = garment.positions[:, 1] < top - 1e-9
+    down_the_dress = np.abs(garment.warp[tube, 1])
+    assert np.median(down_the_dress) > 0.85  # the bodice and the skirt's cone hang on the grain
+    straps = garment.positions[:, 1] > top + 1e-9
+    across = np.abs(garment.warp[straps, 0])
+    assert across.max() < 0.2  # a strap's grain runs along it (in the y–z plane)

@@ -235,6 +235,7 @@ def test_the_shipped_hilo_skirt_dances_with_its_waistband_on_the_pelvis():
     assert stats["max_penetration"] < scene.effects["collision"].thickness
     rig = simulation.body_rig
     pose = rig.pose_at_frame_end
+    assert not rig.pin_on_chest.any()  # the waistband rides on the pelvis
     carried = rig.pin_local @ pose.pelvis_rotation.T + pose.pelvis_position
     np.testing.assert_allclose(simulation.positions()[garment.pinned], carried, atol=1e-5)
     assert np.abs(carried - garment.positions[garment.pinned]).max() > 1e-3  # she moved
@@ -255,3 +256,19 @@ def test_a_mesh_tangled_at_rest_is_a_warning_and_still_runs(tmp_path, capsys):
     simulation = Simulation(scene)
     assert "pairs of its triangles pass through each other at rest" in capsys.readouterr().err
     assert simulation.stats(simulation.run(1))["finite"]
+
+
+def test_a_dress_hangs_from_straps_that_ride_on_the_chest():
+    scene = load_scene("walk-dress", ("cloth.resolution=[24, 14]", "simulation.settle=0.2",
+                                      "simulation.dt=0.016666666666666666"))
+    simulation = Simulation(scene)
+    stats = simulation.stats(simulation.run(9))  # 0.3 s: she has eased into her first step
+    assert stats["finite"]
+    rig, garment = simulation.body_rig, simulation.garment
+    assert rig.pin_on_chest.all() and garment.pinned.sum() > 0
+    pose = rig.pose_at_frame_end
+    carried, _ = rig.carried_pins(pose)
+    np.testing.assert_allclose(carried, pose.chest_position + rig.pin_local @ pose.chest_rotation.T)
+    np.testing.assert_allclose(simulation.positions()[garment.pinned], carried, atol=1e-5)
+    rest = rig.body.pose(0.0)
+    assert np.abs(pose.chest_position - rest.chest_position).max() > 1e-3  # she walked

@@ -78,9 +78,11 @@ def test_both_conventions_drive_the_capsules_of_the_dance(clips, names, axes):
     np.testing.assert_allclose(mocap.capsule_radius, twirl.capsule_radius, rtol=1e-5)
     for t in (0.0, 0.4, 1.17, 2.5, twirl.loop_period + 0.4):
         want, got = twirl.pose(t), mocap.pose(t)
-        for field in ("capsule_a", "capsule_b", "pelvis_position", "pelvis_rotation"):
+        for field in ("capsule_a", "capsule_b", "pelvis_position", "pelvis_rotation",
+                      "chest_position", "chest_rotation"):
             np.testing.assert_allclose(getattr(got, field), getattr(want, field), atol=1e-4)
-        for field in ("capsule_velocity_a", "pelvis_velocity", "pelvis_angular_velocity"):
+        for field in ("capsule_velocity_a", "pelvis_velocity", "pelvis_angular_velocity",
+                      "chest_velocity", "chest_angular_velocity"):
             np.testing.assert_allclose(getattr(got, field), getattr(want, field), atol=2e-3)
         np.testing.assert_allclose(got.display_capsule_a[2:], want.display_capsule_a[2:],
                                    atol=1e-4)  # shoulders, elbows, ankles
@@ -97,6 +99,9 @@ def test_velocities_are_the_derivatives_of_the_pose(clips):
         np.testing.assert_allclose(now.pelvis_velocity,
                                    (ahead.pelvis_position - behind.pelvis_position) / (2 * h),
                                    atol=1e-5)
+        spin = (ahead.chest_rotation - behind.chest_rotation) / (2 * h) @ now.chest_rotation.T
+        np.testing.assert_allclose(now.chest_angular_velocity,
+                                   [spin[2, 1], spin[0, 2], spin[1, 0]], atol=1e-4)
 
 
 def test_clip_times_ease_in_and_a_clip_that_ends(clips):

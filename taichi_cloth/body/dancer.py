@@ -163,7 +163,9 @@ class BodyPose:
     ``capsule_*`` rows follow ``Body.capsule_names``; ``display_capsule_*`` rows follow
     ``DISPLAY_CAPSULE_NAMES``.  The pelvis frame maps local to world points by
     world = pelvis_rotation @ local + pelvis_position; a point p fixed in it moves with
-    pelvis_velocity + pelvis_angular_velocity x (p - pelvis_position).
+    pelvis_velocity + pelvis_angular_velocity x (p - pelvis_position). The chest frame (origin
+    at the base of the neck, turning with the upper body) does the same for the chest: a
+    dress's straps ride on it.
     """
 
     time: float
@@ -177,6 +179,18 @@ class BodyPose:
     pelvis_rotation: np.ndarray  # (3, 3) local -> world rotation
     pelvis_velocity: np.ndarray  # (3,) m/s
     pelvis_angular_velocity: np.ndarray  # (3,) world frame, rad/s
+    chest_position: np.ndarray  # (3,) the base of the neck, m
+    chest_rotation: np.ndarray  # (3, 3) the upper body's local -> world rotation
+    chest_velocity: np.ndarray  # (3,) m/s
+    chest_angular_velocity: np.ndarray  # (3,) world frame, rad/s
+
+
+def angular_velocity(rotation: np.ndarray, rotation_rate: np.ndarray) -> np.ndarray:
+    """ω [rad/s] (world frame) of a frame turning as R(t): the axial vector of the skew
+    matrix dR/dt·Rᵀ = [ω]×."""
+    spin = rotation_rate @ rotation.T
+    return 0.5 * np.array([spin[2, 1] - spin[1, 2], spin[0, 2] - spin[2, 0],
+                           spin[1, 0] - spin[0, 1]])
 
 
 class Body:
@@ -246,12 +260,8 @@ class Body:
 
     def pose(self, t: float) -> BodyPose:
         """The body at time ``t`` (s), with exact (complex-step) velocities."""
-        capsule_a, capsule_b, display_a, display_b, pelvis_position, pelvis_rotation = \
-            self._skeleton(complex(t, COMPLEX_STEP))
-        rotation = pelvis_rotation.real
-        spin = (pelvis_rotation.imag / COMPLEX_STEP) @ rotation.T  # dR/dt R^T = [w]x
-        angular_velocity = 0.5 * np.array(
-            [spin[2, 1] - spin[1, 2], spin[0, 2] - spin[2, 0], spin[1, 0] - spin[0, 1]])
+        (capsule_a, capsule_b, display_a, display_b, pelvis_position, pelvis_rotation,
+         chest_position, chest_rotation) = self._skeleton(complex(t, COMPLEX_STEP))
         return BodyPose(
             time=float(t),
             capsule_a=self.scale * capsule_a.real,
@@ -261,9 +271,15 @@ class Body:
             display_capsule_a=self.scale * display_a.real,
             display_capsule_b=self.scale * display_b.real,
             pelvis_position=self.scale * pelvis_position.real,
-            pelvis_rotation=rotation,
+            pelvis_rotation=pelvis_rotation.real,
             pelvis_velocity=self.scale * pelvis_position.imag / COMPLEX_STEP,
-            pelvis_angular_velocity=angular_velocity,
+            pelvis_angular_velocity=angular_velocity(pelvis_rotation.real,
+                                                     pelvis_rotation.imag / COMPLEX_STEP),
+            chest_position=self.scale * chest_position.real,
+            chest_rotation=chest_rotation.real,
+            chest_velocity=self.scale * chest_position.imag / COMPLEX_STEP,
+            chest_angular_velocity=angular_velocity(chest_rotation.real,
+                                                    chest_rotation.imag / COMPLEX_STEP),
         )
 
     def _envelope(self, t):
@@ -282,7 +298,8 @@ class Body:
                 + self._kaholo_cosine @ np.cos(harmonic) + self._kaholo_sine @ np.sin(harmonic))
 
     def _skeleton(self, t):
-        """Capsule, display and pelvis geometry at (complex) time ``t``, metres at scale 1.
+        """Capsule, display, pelvis and chest (neck base, R_back) geometry at (complex) time
+        ``t``, metres at scale 1.
 
         With the beat count beat = tempo t / 60, the loop phase phi = 2 pi beat / LOOP_BEATS,
         the circle phase psi = 2 pi beat / HIP_CIRCLE_BEATS, the step gain s = E(t) and the
@@ -373,4 +390,6 @@ class Body:
             capsule_a, capsule_b = capsule_a @ spin.T, capsule_b @ spin.T
             display_a, display_b = display_a @ spin.T, display_b @ spin.T
             pelvis_position, pelvis_rotation = spin @ pelvis_position, spin @ pelvis_rotation
-        return capsule_a, capsule_b, display_a, display_b, pelvis_position, pelvis_rotation
+            neck_base, back_rotation = spin @ neck_base, spin @ back_rotation
+        return (capsule_a, capsule_b, display_a, display_b, pelvis_position, pelvis_rotation,
+                neck_base, back_rotation)

@@ -38,7 +38,8 @@ import numpy as np
 
 from taichi_cloth.body.capsules import DISPLAY_CAPSULE_RADIUS, CapsuleLayout
 from taichi_cloth.body.dancer import (ANKLE_HEIGHT, HIP_JOINT_LOCAL, PELVIS_CENTRE_LOCAL,
-                                      PELVIS_HALF_WIDTH, SHIN_LENGTH, THIGH_LENGTH, BodyPose)
+                                      PELVIS_HALF_WIDTH, SHIN_LENGTH, THIGH_LENGTH, BodyPose,
+                                      angular_velocity)
 from taichi_cloth.body.hula import smoothstep
 from taichi_cloth.body.spline import CubicSpline
 from taichi_cloth.errors import InputError
@@ -60,6 +61,7 @@ LOOP_TOLERANCE = 0.02  # m: a clip whose last frame is this close to its first l
 LOOP_PADDING = 12  # frames wrapped around each end of a looping clip's spline
 WAIST_ABOVE_HIPS = -HIP_JOINT_LOCAL[1]  # m at scale 1: the waist circle above the hip joints
 HEAD_SEGMENT = (0.06, 0.09)  # m at scale 1: the head capsule along neck → head, past the head
+CHEST_RATE_STEP = 1e-4  # s: the central difference of the chest frame's turning
 
 
 def plain_name(name: str) -> str:
@@ -258,16 +260,20 @@ class MocapBody:
         start_rate, end_rate, waist_rate = self._bones(joint_rate, rotation_rate)
         capsule_a, capsule_b = self.layout.tile(start, end)
         velocity_a, velocity_b = self.layout.tile(start_rate, end_rate)
-        spin = rotation_rate @ rotation.T
         display_a, display_b = self._display(joints)
+        chest_rotation = chest_frame(joints)
+        chest_rate = (chest_frame(joints + CHEST_RATE_STEP * joint_rate)
+                      - chest_frame(joints - CHEST_RATE_STEP * joint_rate)) / (2 * CHEST_RATE_STEP)
         return BodyPose(time=float(t), capsule_a=capsule_a, capsule_b=capsule_b,
                         capsule_velocity_a=velocity_a, capsule_velocity_b=velocity_b,
                         display_capsule_a=display_a, display_capsule_b=display_b,
                         pelvis_position=waist, pelvis_rotation=rotation,
                         pelvis_velocity=waist_rate,
-                        pelvis_angular_velocity=0.5 * np.array([
-                            spin[2, 1] - spin[1, 2], spin[0, 2] - spin[2, 0],
-                            spin[1, 0] - spin[0, 1]]))
+                        pelvis_angular_velocity=angular_velocity(rotation, rotation_rate),
+                        chest_position=joints[index("neck")],
+                        chest_rotation=chest_rotation,
+                        chest_velocity=joint_rate[index("neck")],
+                        chest_angular_velocity=angular_velocity(chest_rotation, chest_rate))
 
     def _display(self, joints):
         """Neck, head, upper arms, forearms and feet (``dancer.DISPLAY_CAPSULE_NAMES``)."""
@@ -281,6 +287,20 @@ class MocapBody:
         a += [joints[index(f"ankle_{side}")] for side in SIDES]
         b += [joints[index(f"toe_{side}")] for side in SIDES]
         return np.array(a), np.array(b)
+
+
+def chest_frame(joints: np.ndarray) -> np.ndarray:
+    """The chest frame's rotation (3, 3) of one frame's joints (J, 3), columns her left, up and
+    forward: y along the spine (hips' midpoint → neck), x along the shoulders (left − right)
+    made orthogonal to y. Its rate is the central difference along the joints' velocities
+    (``CHEST_RATE_STEP`` s each way: exact for the frame's linear parts, O(h²) for the
+    normalising)."""
+    spine = joints[index("neck")] - joints[[index("hip_left"), index("hip_right")]].mean(0)
+    y = spine / np.linalg.norm(spine)
+    x = joints[index("shoulder_left")] - joints[index("shoulder_right")]
+    x = x - (x @ y) * y
+    x /= np.linalg.norm(x)
+    return np.stack([x, y, np.cross(x, y)], axis=1)
 
 
 def pelvis_rotations(joints: np.ndarray) -> np.ndarray:

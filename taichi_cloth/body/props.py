@@ -39,4 +39,7 @@ class Bar:
                         capsule_velocity_b=still, display_capsule_a=none, display_capsule_b=none,
                         pelvis_position=np.array([0.0, self.waist_height, 0.0]),
                         pelvis_rotation=np.eye(3), pelvis_velocity=np.zeros(3),
-                        pelvis_angular_velocity=np.zeros(3))
+                        pelvis_angular_velocity=np.zeros(3),
+                        chest_position=np.array([0.0, self.waist_height, 0.0]),
+                        chest_rotation=np.eye(3), chest_velocity=np.zeros(3),
+                        chest_angular_velocity=np.zeros(3))

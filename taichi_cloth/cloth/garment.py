@@ -188,9 +188,9 @@ def settling_ripple(garment: "Garment", folds: int = 8, amplitude: float = 0.01)
     by the cone's own slant, (Δr·ŷ − Δy·r̂)/|(Δr, Δy)| for the slant (Δr, Δy) from waist to
     hem, so that a flat circle is pushed out of its plane; zero for other garments. A cone cut
     from flat fabric is an equilibrium, unstable but exact: without a push it would stand.
-    A mesh garment wraps around when its pins circle the vertical axis through their centre
-    (no gap of a quarter turn between them): θ is then the angle about that axis, s the
-    height below the pins over the garment's drop, and the slant each particle's own."""
+    A mesh garment wraps around when its particles circle the vertical axis through their
+    centre (no gap of a quarter turn): θ is then the angle about that axis, s the height below
+    its top (its highest pin) over its drop, and the push radial."""
     if garment.is_grid:
         if not garment.periodic:
             return np.zeros_like(garment.positions)
@@ -200,19 +200,16 @@ def settling_ripple(garment: "Garment", folds: int = 8, amplitude: float = 0.01)
         grid = garment.positions.reshape(rows, columns, 3)
         slant = np.tile(grid[-1] - grid[0], (rows, 1))
     else:
-        pins = garment.positions[garment.pinned]
-        centre = pins.mean(axis=0) if len(pins) else np.zeros(3)
-        pin_angle = np.sort(np.arctan2(pins[:, 2] - centre[2], pins[:, 0] - centre[0]))
-        gaps = np.diff(np.concatenate([pin_angle, pin_angle[:1] + 2 * np.pi]))
-        if len(pins) < 3 or gaps.max() > np.pi / 2:
-            return np.zeros_like(garment.positions)
-        relative = garment.positions - centre
+        positions = garment.positions
+        top = positions[garment.pinned, 1].max() if garment.pinned.any() else positions[:, 1].max()
+        relative = positions - [positions[:, 0].mean(), top, positions[:, 2].mean()]
         angle = np.arctan2(relative[:, 2], relative[:, 0])
+        around = np.sort(angle)
+        if np.diff(np.concatenate([around, around[:1] + 2 * np.pi])).max() > np.pi / 2:
+            return np.zeros_like(positions)
         drop = np.maximum(-relative[:, 1], 0.0)
         fraction = drop / max(drop.max(), 1e-12)
-        pin_radius = np.mean(np.hypot(pins[:, 0] - centre[0], pins[:, 2] - centre[2]))
-        slant = relative.copy()
-        slant[:, [0, 2]] -= pin_radius * np.stack([np.cos(angle), np.sin(angle)], axis=1)
+        slant = np.stack([np.cos(angle), -np.ones_like(angle), np.sin(angle)], axis=1)  # steep
     outward = np.stack([np.cos(angle), np.zeros_like(angle), np.sin(angle)], axis=1)
     radial_run, drop = np.einsum("nk,nk->n", slant, outward), -slant[:, 1]
     direction = outward.copy()
@@ -319,9 +316,17 @@ def build_garment(cloth: ClothConfig, material: Material, waist_height: float | 
                   source: str = "") -> Garment:
     """Build the garment a scene's ``[cloth]`` describes. ``waist_height`` places a skirt (the
     body's waist when there is one, else ``cloth.waist_height``)."""
-    if cloth.shape == "mesh":
-        from taichi_cloth.cloth.mesh_garment import build_mesh_garment  # it builds on this module
-        return build_mesh_garment(cloth, material, source)
+    if cloth.shape in ("mesh", "dress"):  # meshes: their module builds on this one
+        from taichi_cloth.cloth.dress import dress_mesh
+        from taichi_cloth.cloth.mesh_garment import build_mesh_garment, garment_from_mesh
+        if cloth.shape == "mesh":
+            return build_mesh_garment(cloth, material, source)
+        mesh, positions = dress_mesh(cloth, cloth.waist_height if waist_height is None
+                                     else waist_height, source)
+        pinned = np.zeros(len(positions), bool)
+        if cloth.pin == "shoulders":
+            pinned[mesh.groups["shoulders"]] = True
+        return garment_from_mesh(mesh, positions, pinned, cloth, material, source)
     columns, rows = cloth.resolution
     periodic = cloth.is_skirt or cloth.shape == "disc"
     if periodic and columns < 5:

@@ -188,14 +188,22 @@ def build_mesh_garment(cloth: ClothConfig, material: Material, source: str) -> G
     moved by ``cloth.mesh_offset``; prints a warning when its faces' windings disagree."""
     path = mesh_path(cloth, source)
     mesh = read_obj(path)
-    if cloth.bending == "springs":
-        raise InputError(f"{source}: cloth.bending: skip-one springs need a grid; a mesh "
-                         f"garment bends with \"curvature\"")
     conflicts = winding_conflicts(mesh)
     if conflicts:
         print(f"warning: {path}: {conflicts} edges join faces wound opposite ways; the physics "
               f"does not mind, but shading will flip there", file=sys.stderr)
     positions = mesh.positions * cloth.mesh_scale + np.asarray(cloth.mesh_offset, float)
+    return garment_from_mesh(mesh, positions, mesh_pins(cloth, mesh, source), cloth, material,
+                             source)
+
+
+def garment_from_mesh(mesh: ObjMesh, positions: np.ndarray, pinned: np.ndarray,
+                      cloth: ClothConfig, material: Material, source: str) -> Garment:
+    """The garment of ``mesh``'s faces, UVs and groups at ``positions`` (N, 3) [m] with the
+    pins ``pinned`` (N,) bool (module docstring)."""
+    if cloth.bending == "springs":
+        raise InputError(f"{source}: cloth.bending: skip-one springs need a grid; a mesh "
+                         f"garment bends with \"curvature\"")
     triangles, _ = mesh.triangles()
     corner_uvs = corner_uv_table(mesh)
     across, down = pattern_axes(positions, triangles, corner_uvs)
@@ -231,7 +239,7 @@ def build_mesh_garment(cloth: ClothConfig, material: Material, source: str) -> G
         springs={name: pairs for name, (pairs, _) in chosen.items()},
         spring_stiffness={name: stiffness for name, (_, stiffness) in chosen.items()},
         mass=lumped_mass(positions, triangles, material.density),
-        pinned=mesh_pins(cloth, mesh, source), columns=0, rows=0, periodic=False,
+        pinned=pinned, columns=0, rows=0, periodic=False,
         damping_time=material.damping, warp=warp, hinges=hinges,
         hinge_rigidity=hinge_rigidity(positions, warp, hinges, material.bend_stiffness,
                                       material.bend_weft),

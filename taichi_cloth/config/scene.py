@@ -199,10 +199,12 @@ def scene_from_document(path: Path, raw: dict, overridden: list[str] = ()) -> Sc
     if cloth.is_skirt and cloth.pin not in ("waist", "none"):
         raise ctx.error("cloth.pin", f"a skirt is pinned at \"waist\" or \"none\", got "
                                      f"{cloth.pin!r}")
-    if (cloth.shape == "mesh") != (cloth.pin in ("group", "vertices")) and cloth.pin != "none":
-        raise ctx.error("cloth.pin", f"pin = {cloth.pin!r} does not apply to shape = "
-                                     f"{cloth.shape!r}; a mesh is pinned at \"group\", "
-                                     f"\"vertices\" or \"none\"")
+    for shape, pins in (("mesh", ("group", "vertices")), ("dress", ("shoulders",))):
+        if (cloth.shape == shape) != (cloth.pin in pins) and cloth.pin != "none":
+            allowed = ", ".join(f'"{pin}"' for pin in pins)
+            raise ctx.error("cloth.pin", f"pin = {cloth.pin!r} does not apply to shape = "
+                                         f"{cloth.shape!r}; a {shape} is pinned at {allowed} "
+                                         f"or \"none\"")
     if cloth.pin == "group" and not cloth.pin_groups:
         raise ctx.error("cloth.pin_groups", "pin = \"group\" needs the groups, e.g. "
                                             "pin_groups = [\"waistband\"]")

@@ -83,13 +83,22 @@ class MaterialOverrides:
 @dataclass(frozen=True)
 class ClothConfig:
     shape: str = setting("sheet", "str",
-                         choices=("skirt", "circle-skirt", "pleated", "sheet", "disc", "mesh"),
+                         choices=("skirt", "circle-skirt", "pleated", "dress", "sheet", "disc",
+                                  "mesh"),
                          doc="skirt: a cone (A-line) from waist_radius to hem_radius; "
                              "circle-skirt: cut from a fraction `circle` of an annulus; "
                              "pleated: the cone with `pleats` box pleats `pleat_depth` deep; "
                              "disc: a flat circular specimen (Cusick drape), rings from "
-                             "waist_radius to hem_radius at height; mesh: the triangles "
+                             "waist_radius to hem_radius at height; dress: a bodice, the "
+                             "skirt's cone and two shoulder straps (cloth/dress.py); mesh: the "
+                             "triangles "
                              "and quads of the OBJ file `mesh`")
+    bodice_radius: float = setting(0.135, "float", low=0.0, low_inclusive=False,
+                                   doc="dress: m, the bodice's tube round the torso")
+    bodice_height: float = setting(0.26, "float", low=0.0, low_inclusive=False,
+                                   doc="dress: m from the waist up to the bodice's top edge")
+    strap_width: float = setting(0.035, "float", low=0.0, low_inclusive=False,
+                                 doc="dress: m, each shoulder strap")
     mesh: str = setting("", "str", doc="mesh: an OBJ file, relative to the scene file; its "
                                        "coordinates y up, in units of mesh_scale")
     mesh_scale: float = setting(1.0, "float", low=0.0, low_inclusive=False,
@@ -105,11 +114,12 @@ class ClothConfig:
                                           doc="a preset name, or a table of overrides")
     pin: str = setting("top-edge", "str",
                        choices=("waist", "top-edge", "left-edge", "corners", "clamp", "group",
-                                "vertices", "none"),
+                                "vertices", "shoulders", "none"),
                        doc="left-edge: a sheet's first column (a flag's hoist); clamp: a "
                            "disc's particles within clamp_radius of its centre; group, "
-                           "vertices: a mesh's pin_groups or pin_vertices (carried by the "
-                           "dancer's pelvis when there is one)")
+                           "vertices: a mesh's pin_groups or pin_vertices; shoulders: a "
+                           "dress's straps (carried by the dancer's pelvis, or chest above "
+                           "the middle of her back, when there is one)")
     pin_groups: tuple = setting([], "str_list", doc="mesh, pin = \"group\": OBJ group (g) or "
                                                     "object (o) names whose vertices are held")
     pin_vertices: tuple = setting([], "int_list", low=1,

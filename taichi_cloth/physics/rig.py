@@ -3,8 +3,10 @@ written into the prescribed motion (``physics.control.Control``) that the kernel
 
 Once per frame, ``prepare_frame`` poses the body at ``SAMPLES_PER_FRAME`` + 1 evenly spaced times
 covering the frame and uploads (i) the capsule endpoints with their velocities to the control's
-capsule track, which the contact effect reads, and (ii) the skirt's pinned waist ring, carried by
-the pelvis frame (x = R·p_local + origin, v = v_origin + ω × R·p_local), to its pin track. The
+capsule track, which the contact effect reads, and (ii) the garment's pins (a skirt's waist ring,
+a mesh garment's pins, a dress's straps), each carried by the pelvis frame or, above the middle of
+the back in the rest pose, the chest frame (x = R·p_local + origin, v = v_origin + ω × R·p_local),
+to its pin track. The
 kernels interpolate both at every substep and RK4 stage (``physics.control``); nothing runs on the
 host inside the substep loop.
 """
@@ -52,13 +54,14 @@ class BodyRig:
             self.body = Body(config.motion, config.tempo, config.amplitude, config.capsules,
                              config.scale, config.ease_in)
         self.frame_duration = 1.0 / scene.scene.fps  # [s]
-        # A skirt's waist and a mesh garment's pins ride on the pelvis; other pins stay put.
+        # A skirt's waist, a mesh garment's pins and a dress's straps ride on the body.
         self.carries_pins = scene.cloth.pin == "waist" or (
-            scene.cloth.pin in ("group", "vertices") and config.capsules not in PROPS)
+            scene.cloth.pin in ("group", "vertices", "shoulders") and config.capsules not in PROPS)
         self.capsule_count = self.body.capsule_count
         self.waist_height = self.body.waist_height
         self.control = None
-        self.pin_local = None
+        self.pin_local = None  # each pin in its carrying frame, m
+        self.pin_on_chest = None  # whether the chest (not the pelvis) carries it
         self.pose_at_frame_end = self.body.pose(0.0)  # the body where the last frame ended
 
     def make_control(self, pinned: np.ndarray, rest_positions: np.ndarray, real) -> Control:
@@ -69,9 +72,27 @@ class BodyRig:
                                self.sample_count)
         rest = self.pose_at_frame_end
         pinned_rest = rest_positions[self.control.pinned_particles]
-        self.pin_local = (pinned_rest - rest.pelvis_position) @ rest.pelvis_rotation
+        self.pin_on_chest = pinned_rest[:, 1] > 0.5 * (rest.pelvis_position[1]
+                                                       + rest.chest_position[1])
+        origin, rotation, _, _ = self.pin_frames(rest)
+        self.pin_local = np.einsum("pk,pkj->pj", pinned_rest - origin, rotation)
         self.control.capsule_ends_at_frame_end = (rest.capsule_a, rest.capsule_b)
         return self.control
+
+    def pin_frames(self, pose):
+        """Each pin's carrying frame in ``pose``: origins (P, 3) [m], rotations (P, 3, 3),
+        velocities (P, 3) [m/s], angular velocities (P, 3) [rad/s]."""
+        chest = self.pin_on_chest[:, None]
+        return (np.where(chest, pose.chest_position, pose.pelvis_position),
+                np.where(chest[:, :, None], pose.chest_rotation, pose.pelvis_rotation),
+                np.where(chest, pose.chest_velocity, pose.pelvis_velocity),
+                np.where(chest, pose.chest_angular_velocity, pose.pelvis_angular_velocity))
+
+    def carried_pins(self, pose) -> tuple[np.ndarray, np.ndarray]:
+        """The pins' positions (P, 3) [m] and velocities (P, 3) [m/s] in ``pose``."""
+        origin, rotation, velocity, angular_velocity = self.pin_frames(pose)
+        arm = np.einsum("pjk,pk->pj", rotation, self.pin_local)
+        return origin + arm, velocity + np.cross(angular_velocity, arm)
 
     def prepare_frame(self, frame: int, still: bool = False) -> None:
         """Pose the body across the frame interval ``frame`` (t from frame/fps to
@@ -85,7 +106,8 @@ class BodyRig:
             zero = np.zeros_like(start.capsule_velocity_a)
             poses = [dataclasses.replace(
                 start, capsule_velocity_a=zero, capsule_velocity_b=zero,
-                pelvis_velocity=np.zeros(3), pelvis_angular_velocity=np.zeros(3))] \
+                pelvis_velocity=np.zeros(3), pelvis_angular_velocity=np.zeros(3),
+                chest_velocity=np.zeros(3), chest_angular_velocity=np.zeros(3))] \
                 * self.sample_count
         else:
             poses = [self.body.pose(first_time + k * interval) for k in range(self.sample_count)]
@@ -96,10 +118,8 @@ class BodyRig:
             for p in poses])
         control.capsule_track.upload(first_time, interval, capsule_positions, capsule_velocities)
         if self.carries_pins and len(control.pinned_particles):
-            arms = np.stack([self.pin_local @ p.pelvis_rotation.T for p in poses])
-            pin_positions = arms + np.stack([p.pelvis_position for p in poses])[:, None, :]
-            pin_velocities = np.stack([p.pelvis_velocity + np.cross(p.pelvis_angular_velocity, arm)
-                                       for p, arm in zip(poses, arms)])
-            control.pin_track.upload(first_time, interval, pin_positions, pin_velocities)
+            pin_positions, pin_velocities = zip(*(self.carried_pins(p) for p in poses))
+            control.pin_track.upload(first_time, interval, np.stack(pin_positions),
+                                     np.stack(pin_velocities))
         self.pose_at_frame_end = poses[-1]
         control.capsule_ends_at_frame_end = (poses[-1].capsule_a, poses[-1].capsule_b)
