@@ -322,6 +322,26 @@ def test_a_pleated_skirt_zigzags_round_its_waist_with_the_fabric_of_its_pleats()
         garment_of("skirt", "cloth.shape='pleated'", "cloth.pleats=7", "cloth.resolution=[24, 5]")
 
 
+def test_knife_pleats_step_out_one_way_and_fold_back_under_the_next():
+    """Knife pleats: within a pleat of n columns the radius steps from the cone's − depth/2 to
+    + depth/2 in n − 1 equal steps, then falls back (the fold under the next pleat): a sawtooth
+    whose steps all run the same way round."""
+    pleats, depth = 4, 0.03
+    _, garment = garment_of("skirt", "cloth.shape='pleated'", "cloth.pleat_style='knife'",
+                            f"cloth.pleats={pleats}", f"cloth.pleat_depth={depth}",
+                            "cloth.resolution=[16, 5]")
+    _, plain = garment_of("skirt", "cloth.resolution=[16, 5]")
+    offset = (np.hypot(garment.positions[:, 0], garment.positions[:, 2])
+              - np.hypot(plain.positions[:, 0], plain.positions[:, 2])).reshape(5, 16)
+    np.testing.assert_allclose(offset, np.tile(depth * (np.arange(4) / 3 - 0.5), (5, pleats)),
+                               atol=1e-12)
+    steps = np.diff(np.concatenate([offset[0], offset[0, :1]]))
+    assert (steps[np.arange(16) % 4 != 3] > 0).all() and (steps[3::4] < 0).all()
+    with pytest.raises(InputError, match="at least 3 a pleat"):
+        garment_of("skirt", "cloth.shape='pleated'", "cloth.pleat_style='knife'",
+                   "cloth.pleats=8", "cloth.resolution=[16, 5]")
+
+
 DRESS = ("cloth.shape=dress", "cloth.pin=shoulders", "cloth.resolution=[32, 18]",
          "cloth.hem_radius=0.38", "cloth.length=0.5")
 

@@ -169,14 +169,19 @@ def skirt_positions(cloth: ClothConfig, waist_height: float) -> np.ndarray:
 
 
 def pleat_offset(cloth: ClothConfig, angle: np.ndarray) -> np.ndarray:
-    """The radial offset [m] of a pleated skirt at each column's ``angle``: a triangle wave of
-    ``pleats`` periods between −pleat_depth/2 (an inner fold) and +pleat_depth/2 (an outer
-    fold), so that the fabric zigzags round the waist as box pleats do; zero for other
-    garments. Rest lengths come from these positions, so the pleats' extra fabric is in the
+    """The radial offset [m] of a pleated skirt at each column's ``angle`` (all the columns,
+    evenly spaced): for box pleats a triangle wave of ``pleats`` periods between −pleat_depth/2
+    (an inner fold) and +pleat_depth/2 (an outer fold), so that the fabric zigzags round the
+    waist; for knife pleats a sawtooth, each pleat's columns stepping out from the inner to the
+    outer fold and the next pleat starting again at its inner fold, so that every pleat faces
+    the same way; zero for other garments. Rest lengths come from these positions, so the pleats' extra fabric is in the
     pattern (the bending rest state is flat: the pleats are laid, not pressed in)."""
     if cloth.shape != "pleated":
         return np.zeros_like(angle)
     phase = (cloth.pleats * angle / (2 * np.pi)) % 1.0
+    if cloth.pleat_style == "knife":  # a sawtooth: each pleat's face runs outwards, then folds
+        per_pleat = len(angle) // cloth.pleats  # back under the next one, all the same way round
+        return cloth.pleat_depth * (np.round(phase * per_pleat) / (per_pleat - 1) - 0.5)
     return cloth.pleat_depth * (0.5 - np.abs(2.0 * phase - 1.0))
 
 
@@ -332,7 +337,11 @@ def build_garment(cloth: ClothConfig, material: Material, waist_height: float | 
     if periodic and columns < 5:
         raise InputError(f"{source}: cloth.resolution: a {cloth.shape} needs at least 5 "
                          f"particles around, got {columns}")
-    if cloth.shape == "pleated" and columns % (2 * cloth.pleats):
+    if cloth.shape == "pleated" and cloth.pleat_style == "knife" and (
+            columns % cloth.pleats or columns < 3 * cloth.pleats):
+        raise InputError(f"{source}: cloth.resolution: knife pleats need a multiple of pleats = "
+                         f"{cloth.pleats} particles around, at least 3 a pleat, got {columns}")
+    if cloth.shape == "pleated" and cloth.pleat_style == "box" and columns % (2 * cloth.pleats):
         raise InputError(f"{source}: cloth.resolution: a pleated skirt needs a multiple of 2 × "
                          f"pleats = {2 * cloth.pleats} particles around (its folds on "
                          f"particles), got {columns}")

@@ -87,7 +87,8 @@ class ClothConfig:
                                   "mesh"),
                          doc="skirt: a cone (A-line) from waist_radius to hem_radius; "
                              "circle-skirt: cut from a fraction `circle` of an annulus; "
-                             "pleated: the cone with `pleats` box pleats `pleat_depth` deep; "
+                             "pleated: the cone with `pleats` box or knife pleats `pleat_depth` "
+                             "deep; "
                              "disc: a flat circular specimen (Cusick drape), rings from "
                              "waist_radius to hem_radius at height; dress: a bodice, the "
                              "skirt's cone and two shoulder straps (cloth/dress.py); mesh: the "
@@ -108,6 +109,10 @@ class ClothConfig:
     pleats: int = setting(12, "int", low=2, high=512, doc="pleated: pleats around")
     pleat_depth: float = setting(0.02, "float", low=0.0, low_inclusive=False,
                                  doc="pleated: m from a pleat's inner to its outer fold")
+    pleat_style: str = setting("box", "str", choices=("box", "knife"),
+                               doc="pleated: box (folds alternating in and out, particles around "
+                                   "a multiple of 2 × pleats) or knife (all facing one way, a "
+                                   "multiple of pleats, at least 3 a pleat)")
     resolution: tuple = setting([24, 24], "int_list", low=2, high=4096, length=2,
                                 doc="[around, down] for a skirt, [x, z] for a sheet")
     material: MaterialOverrides = setting(MaterialOverrides(), "table", shorthand="preset",
