@@ -1,6 +1,7 @@
 """Draw the garment library, ``docs/garments.png``: the A-line skirt (``skirt``), the half and
-full circle skirts (``circle-skirt``) and the pleated skirt (``pleated``), each of cotton in
-one colour, settled on the still dancer (two seconds after settling), side by side. Run
+full circle skirts (``circle-skirt``), the pleated skirt (``pleated``), the dress (``dress``) and
+a garment from a mesh file (``scenes/garments/hilo-skirt.obj``), each of cotton in one colour,
+settled on the still dancer (two seconds after settling), in two rows. Run
 
     .venv/bin/python tools/garment_gallery.py [OUT.png]
 """
@@ -21,6 +22,11 @@ GARMENTS = (
     ("full circle: circle-skirt", ["cloth.shape='circle-skirt'", "cloth.length=0.45"]),
     ("pleated: 16 box pleats 3 cm deep", ["cloth.shape='pleated'", "cloth.pleats=16",
                                           "cloth.pleat_depth=0.03"]),
+    ("dress", ["cloth.shape='dress'", "cloth.pin='shoulders'", "cloth.resolution=[64, 34]",
+               "cloth.hem_radius=0.38", "cloth.length=0.5", "simulation.dt=0.008333333333333333",
+               "render.camera_position=[0.9, 1.35, 2.1]", "render.camera_lookat=[0.0, 0.9, 0.0]"]),
+    ("from a file: hilo-skirt.obj", ["cloth.shape='mesh'", "cloth.mesh='garments/hilo-skirt.obj'",
+                                     "cloth.pin='group'", "cloth.pin_groups=['waistband']"]),
 )
 COMMON = ["cloth.resolution=[96, 24]", "body.motion='still'", "render.texture='none'",
           "render.cloth_color=[0.2, 0.35, 0.6]", "render.camera_position=[0.9, 1.15, 1.9]",
@@ -28,18 +34,20 @@ COMMON = ["cloth.resolution=[96, 24]", "body.motion='still'", "render.texture='n
 
 
 def gallery(target: Path) -> None:
-    figure = Figure(figsize=(4 * len(GARMENTS), 3.9))
-    panels = figure.subplots(1, len(GARMENTS))
+    columns = (len(GARMENTS) + 1) // 2
+    figure = Figure(figsize=(4 * columns, 7.8))
+    panels = figure.subplots(2, columns).ravel()
     with tempfile.TemporaryDirectory() as scratch:
-        for axes, (title, overrides) in zip(panels, GARMENTS):
-            out = Path(scratch) / str(len(title))
+        for index, (axes, (title, overrides)) in enumerate(zip(panels, GARMENTS)):
+            out = Path(scratch) / str(index)
             sets = [item for key in COMMON + overrides for item in ("--set", key)]
             main(["render", "hula", *sets, "--frames", "60", "--width", "480", "--height",
                   "400", "--quiet", "--out", str(out)])
             axes.imshow(read_png(out / "frames" / "frame_00060.png"))
             axes.set_title(title, fontsize=10)
             axes.set_axis_off()
-    figure.subplots_adjust(left=0.01, right=0.99, bottom=0.01, top=0.92, wspace=0.04)
+    figure.subplots_adjust(left=0.01, right=0.99, bottom=0.01, top=0.95, wspace=0.04,
+                           hspace=0.1)
     with atomic_path(target, ".png") as temporary:
         figure.savefig(temporary, format="png", dpi=110)
 
