@@ -199,6 +199,7 @@ def test_obj_statements_groups_negative_indices_and_winding(tmp_path):
     (("cloth.pin=group",), "cloth.pin_groups"),
     (("cloth.mesh=\"missing.obj\"", "cloth.pin=none"), "cloth.mesh"),
     (("cloth.pin=none", "cloth.bending=springs"), "cloth.bending"),
+    (("cloth.pin=none", "cloth.springs=[\"shear\"]"), "cloth.springs"),
 ])
 def test_bad_mesh_settings_name_their_key(tmp_path, overrides, key):
     triangle_sheet(tmp_path / "tri.obj", 3, 3, 0.1)

@@ -230,6 +230,9 @@ def garment_from_mesh(mesh: ObjMesh, positions: np.ndarray, pinned: np.ndarray,
                 "shear": (diagonals, shear_stiffness)}
     chosen = {name: value for name, value in families.items()
               if name in cloth.springs and len(value[0])}
+    if not chosen:
+        raise InputError(f"{source}: cloth.springs: {list(cloth.springs)} gives this mesh no "
+                         f"springs (shear springs are a quad's diagonals; it has no quads)")
     hinges = hinge_stencils(triangles)
     uvs = np.zeros((len(positions), 2))
     if corner_uvs is not None:
