@@ -104,7 +104,8 @@ def read_obj(path: Path) -> ObjMesh:
         elif keyword == "f":
             if not 3 <= len(rest) <= 4:
                 raise InputError(f"{path}:{number}: a face of {len(rest)} corners; garments "
-                                 f"are triangles and quads")
+                                 f"are triangles and quads (triangulate the rest, e.g. "
+                                 f"Blender's Triangulate Faces)")
             corners = [text.split("/") for text in rest]
             vertex = [_index(c[0], len(positions), path, number, "vertex") for c in corners]
             texture = [_index(c[1], len(uvs), path, number, "texture coordinate")
