@@ -31,6 +31,18 @@ def start_taichi(arch: str = "cpu", kernel_profiler: bool = False,
         raise InputError(f"--arch {arch}: no {arch} device found (Taichi fell back to the CPU)")
 
 
+def field_trees() -> int:
+    """How many field (SNode) trees the started runtime holds: every batch of fields allocated
+    between two kernel launches is one, and none is freed until the runtime is reset."""
+    return ti.lang.impl.get_runtime().prog.get_snode_tree_size()
+
+
+def reset_taichi() -> None:
+    """Stop the started runtime, dropping every field and compiled kernel (the next
+    ``start_taichi`` starts a fresh one; kernels compile again, from the offline cache)."""
+    ti.reset()
+
+
 def taichi_threads() -> int:
     """The started runtime's CPU thread count."""
     return ti.lang.impl.current_cfg().cpu_max_num_threads

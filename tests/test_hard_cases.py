@@ -26,7 +26,7 @@ PENETRATION_MARGIN = 0.01  # m, on top of the contact thickness
 PASSING_RUNS = [
     ("stiff-denim", (), 0.10, 2.0),
     ("fast-dance", (), 0.10, 3.0),
-    ("frame-steps", (), 0.12, 3.0),
+    ("frame-steps", (), 0.15, 3.0),
     ("gale", (), 0.10, 15.0),
     ("gale", ("simulation.integrator=rk4",), 0.10, 15.0),
     ("gale", ("simulation.integrator=implicit", "simulation.max_retries=0"), 0.10, 15.0),

@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 
 from taichi_cloth import cli
-from taichi_cloth.body.bvh_export import MIXAMO_NAMES, dance_joints, write_dance_bvh
+from taichi_cloth.body.bvh_export import (MIXAMO_NAMES, dance_joints, shortest_rotation,
+                                          write_dance_bvh)
 from taichi_cloth.body.dancer import Body
-from taichi_cloth.body.mocap import CMU, JOINT_NAMES, MocapBody, read_clip
+from taichi_cloth.body.mocap import CMU, JOINT_NAMES, MocapBody, leg_length, read_clip, unit_of
 from taichi_cloth.body.spline import CubicSpline
 from taichi_cloth.config.tables import BvhConfig
 from taichi_cloth.errors import InputError
@@ -156,6 +157,31 @@ def test_bad_files_are_one_line_exit_2(clips, tmp_path, capsys):
         read_clip(tmp_path / "missing.bvh", ())
     joints, _, _ = read_clip(tmp_path / "missing.bvh", ("ankle_left=LeftPaw",))  # named by hand
     assert joints.shape[1] == len(JOINT_NAMES)
+
+
+def test_the_shortest_rotation_turns_a_bone_onto_any_direction_even_the_opposite():
+    rng = np.random.default_rng(3)
+    for a, b in [(v, rng.normal(size=3)) for v in rng.normal(size=(4, 3))] + \
+            [(np.array([0.0, 1.0, 0.0]), np.array([0.0, -2.0, 0.0])),
+             (np.array([0.3, -0.2, 0.9]), np.array([-0.3, 0.2, -0.9]))]:
+        rotation = shortest_rotation(a, b)
+        np.testing.assert_allclose(rotation @ rotation.T, np.eye(3), atol=1e-12)
+        assert np.isclose(np.linalg.det(rotation), 1.0)
+        np.testing.assert_allclose(rotation @ a / np.linalg.norm(a), b / np.linalg.norm(b),
+                                   atol=1e-12)
+
+
+def test_a_leg_of_no_adult_length_in_any_unit_asks_for_the_unit(clips):
+    """"auto" takes the unit in which the leg is an adult's; a clip scaled as the CMU cgspeed
+    exports are (a leg ~14.6 units: 0.37 m in inches, 14.6 m in metres) is refused, naming the
+    setting, and read in the unit the scene gives."""
+    joints, _, _ = read_clip(clips[0] / "twirl_cmu_z_cm.bvh", ())
+    leg = leg_length(joints[0])
+    assert unit_of(joints[0], "auto", "clip.bvh") == 0.01 and 0.5 < leg / 100 < 1.2
+    cgspeed = joints[0] * 14.6 / leg
+    with pytest.raises(InputError, match=r"clip\.bvh: the leg is 14\.6 units.*body\.bvh\.units"):
+        unit_of(cgspeed, "auto", "clip.bvh")
+    assert unit_of(cgspeed, "inch", "clip.bvh") == 0.0254
 
 
 def test_the_mocap_scene_runs_on_its_shipped_clip():

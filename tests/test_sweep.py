@@ -64,7 +64,8 @@ def test_plan_file_and_command_line_make_the_same_runs(tmp_path):
                                  "cloth.resolution=[6, 6]")
     bad = {"[sweep]\n": "scene", '[sweep]\nscene = "sheet"\ncolour = 1\n': "colour",
            '[sweep]\nscene = "sheet"\n[sweep.grid]\n"cloth.material" = []\n': "cloth.material",
-           '[other]\n': r"\[sweep\]", '[sweep]\nscene = "sheet"\nframes = 1.5\n': "frames"}
+           '[other]\n': r"\[sweep\]", '[sweep]\nscene = "sheet"\nframes = 1.5\n': "frames",
+           '[sweep]\nscene = "sheet"\nframes = 0\n': "frames"}
     for text, named in bad.items():
         plan_file.write_text(text)
         with pytest.raises(InputError, match=named):
@@ -128,6 +129,43 @@ def test_a_failed_run_is_a_row_and_the_others_complete(tmp_path):
     assert [(row["status"], row["exit_code"]) for row in rows] == [("done", 0),
                                                                     ("bad input", 2)]
     assert "nylon" in rows[1]["error"] and rows[0]["max_strain"] is not None
+    # the same runs again into that folder, unstable before their first frame (while settling):
+    # their rows and the contact sheet show nothing of the earlier runs' stats or thumbnails
+    assert (tmp_path / "runs" / rows[0]["name"] / "thumbnail.png").is_file()
+    assert main(["sweep", "sheet", "--grid", "cloth.material=silk,nylon",
+                 "--grid", "cloth.resolution=[5,5]", "--frames", "2", "--workers", "1",
+                 "--set", "simulation.settle=0.5", "--set", "simulation.integrator=euler",
+                 "--set", "simulation.dt=0.05", "--quiet", "--out", str(tmp_path)]) == 0
+    again = json.loads((tmp_path / "results.json").read_text())["runs"]
+    assert [row["status"] for row in again] == ["unstable", "bad input"]
+    assert again[0].get("max_strain") is None and "thumbnail" not in again[0]
+    assert not (tmp_path / "runs" / rows[0]["name"] / "thumbnail.png").exists()
+
+
+def test_a_worker_resets_its_runtime_before_it_runs_out_of_field_trees(tmp_path):
+    """In a process of its own (a reset drops this session's fields): three runs with a reset
+    due before each give the same stats as the first, and the runtime never holds more trees
+    than a run needs."""
+    script = f"""
+import json
+from pathlib import Path
+from taichi_cloth.runtime import field_trees
+from taichi_cloth.studies import sweep
+sweep.FIELD_TREES_BEFORE_RESET = 1
+plan = sweep.make_plan("sheet", ["render.width=100,110,120"], ["cloth.resolution=[5,5]"],
+                       2, None)
+trees, stats = [], []
+for job in plan.jobs(Path({str(tmp_path)!r})):
+    row = sweep.run_job(job)
+    assert row["status"] == "done", row
+    trees.append(field_trees())
+    document = json.loads((Path(job.folder) / "stats.json").read_text())
+    document.pop("wall_seconds")
+    stats.append(document)
+assert len(set(trees)) == 1, trees
+assert stats[0] == stats[1] == stats[2]
+"""
+    subprocess.run([sys.executable, "-c", script], cwd=ROOT, check=True, timeout=300)
 
 
 def test_a_killed_sweep_resumed_runs_only_what_is_missing(tmp_path):

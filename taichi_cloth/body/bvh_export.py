@@ -35,6 +35,7 @@ HIERARCHY = (("hips", None), ("hip_left", "hips"), ("knee_left", "hip_left"),
              ("elbow_right", "shoulder_right"), ("wrist_right", "elbow_right"))
 MIXAMO_NAMES = {"hips": "Hips", "spine": "Spine", **MIXAMO}
 END_SITE = 0.05  # m: the end sites' bone length (head top, toes, hands)
+OPPOSITE_COSINE = -1.0 + 1e-14  # below it, a and b count as opposite (shortest_rotation)
 
 
 def dance_joints(body: Body, t: float) -> dict:
@@ -55,9 +56,15 @@ def dance_joints(body: Body, t: float) -> dict:
 
 
 def shortest_rotation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """The rotation by the smallest angle taking the direction of a to that of b (Rodrigues)."""
+    """The rotation by the smallest angle taking the direction of a to that of b (Rodrigues);
+    for opposite directions (1 + cos θ → 0, where Rodrigues divides by it) the half turn
+    2 n nᵀ − I about an axis n perpendicular to a."""
     a, b = a / np.linalg.norm(a), b / np.linalg.norm(b)
     axis, cosine = np.cross(a, b), float(a @ b)
+    if cosine < OPPOSITE_COSINE:
+        n = np.cross(a, np.eye(3)[np.argmin(np.abs(a))])
+        n /= np.linalg.norm(n)
+        return 2.0 * np.outer(n, n) - np.eye(3)
     cross = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
     return np.eye(3) + cross + cross @ cross / (1.0 + cosine)
 

@@ -9,8 +9,8 @@ colon) and the CMU names of the ASF skeleton (``lfemur``, ``ltibia``, ...); ``bo
 
 Then, in this order:
 
-- units: ``body.bvh.units`` m, cm or inch, or "auto" from the leg (hip → knee → ankle: under
-  3 units metres, under 50 inches, under 300 centimetres);
+- units: ``body.bvh.units`` m, cm or inch, or "auto": the unit in which the leg (hip → knee →
+  ankle) is 0.5–1.2 m long, an InputError when none is;
 - axes: ``body.bvh.up`` y or z, or "auto" (the axis the hips → neck vector of the first frame
   runs along); the clip is turned so that up is +y, her left (left hip − right hip) +x and she
   faces +z, as the procedural dancer, centred over the origin with her lower ankle at the
@@ -57,6 +57,7 @@ CMU = {"neck": "lowerneck", "head": "head",
            LIMB_JOINTS, ("femur", "tibia", "foot", "toes", "humerus", "radius", "wrist"))}}
 BUILT_IN_MAPS = {"mixamo": MIXAMO, "cmu": CMU}
 UNIT_METRES = {"m": 1.0, "cm": 0.01, "inch": 0.0254}
+ADULT_LEG = (0.5, 1.2)  # m, hip joint → knee → ankle joint: what units = "auto" accepts
 LOOP_TOLERANCE = 0.02  # m: a clip whose last frame is this close to its first loops
 LOOP_PADDING = 12  # frames wrapped around each end of a looping clip's spline
 WAIST_ABOVE_HIPS = -HIP_JOINT_LOCAL[1]  # m at scale 1: the waist circle above the hip joints
@@ -128,15 +129,20 @@ def leg_length(joints: np.ndarray) -> float:
 
 
 def unit_of(joints: np.ndarray, units: str, path: str) -> float:
-    """Metres per file unit: ``units``, or "auto" from the leg length."""
+    """Metres per file unit: ``units``, or "auto": the one unit in which the leg (hip → knee →
+    ankle) is as long as an adult's, ``ADULT_LEG`` (the ranges of m, inch and cm do not
+    overlap); a leg that fits none (a child, a scaled export such as the CMU cgspeed files) is
+    an InputError asking for ``body.bvh.units``."""
     if units != "auto":
         return UNIT_METRES[units]
     leg = leg_length(joints)
-    for limit, unit in ((3.0, "m"), (50.0, "inch"), (300.0, "cm")):
-        if leg < limit:
-            return UNIT_METRES[unit]
-    raise InputError(f"{path}: a leg {leg:g} units long matches no unit (m, cm, inch); set "
-                     f"body.bvh.units")
+    for unit, metres in UNIT_METRES.items():
+        if ADULT_LEG[0] <= leg * metres <= ADULT_LEG[1]:
+            return metres
+    readings = ", ".join(f"{leg * metres:.3g} m in {unit}" for unit, metres in UNIT_METRES.items())
+    raise InputError(f"{path}: the leg is {leg:g} units long ({readings}): no unit gives an "
+                     f"adult's {ADULT_LEG[0]:g}–{ADULT_LEG[1]:g} m; set body.bvh.units (the "
+                     f"dancer is sized from the leg, so any unit gives a whole body)")
 
 
 def up_of(joints: np.ndarray, up: str) -> np.ndarray:

@@ -152,7 +152,11 @@ def view(scene, from_cache: str | None, size: tuple, frames: int | None,
         source = LiveSource(scene, quiet)
     width, height = size[0] or scene.render.width, size[1] or scene.render.height
     with Renderer(scene, source.garment, source.body, width, height, visible=True) as renderer:
-        shown = run_viewer(renderer, source, frames, Path(screenshot) if screenshot else None)
+        shown, saved = run_viewer(renderer, source, frames,
+                                  Path(screenshot) if screenshot else None)
     if not quiet and screenshot:
-        print(f"{scene.name}: {shown} frames shown, the last saved to {screenshot}")
+        print(f"{scene.name}: {shown} frames shown, " + (
+            f"the last saved to {screenshot}" if saved else
+            f"not saved to {screenshot} (the window was closed; stop with q or Esc, or give "
+            f"--frames, to save it)"))
     return 0

@@ -8,8 +8,8 @@ max strain and penetration.
 
 ``ViewerControls`` is the keyboard and mouse logic alone (no window), so that it can be tested
 by feeding it keys; ``run_viewer`` is the window loop. With ``frames`` the loop plays that many
-frames and stops, and ``screenshot`` saves the last picture: the viewer run by a script (and by
-the tests, under a virtual X display).
+frames and stops, and ``screenshot`` saves the last picture (also when the user quits with q or
+Esc): the viewer run by a script (and by the tests, under a virtual X display).
 """
 
 import math
@@ -91,17 +91,19 @@ class ViewerControls:
 
 
 def run_viewer(renderer, source, frames: int | None = None,
-               screenshot: Path | None = None) -> int:
+               screenshot: Path | None = None) -> tuple[int, bool]:
     """Show ``source`` (``output/view.py``: its ``positions`` field, time ``t``, ``advance()``,
     ``restart()`` and overlay ``lines()``) in ``renderer``'s visible window until the user quits
-    (or, with ``frames``, after that many frames, saving ``screenshot``). Returns the frames
-    shown."""
+    (q or Esc, or closing the window) or, with ``frames``, until that many frames were shown.
+    ``screenshot``: the last picture is saved there when the viewer stops by ``frames`` or by
+    q/Esc (a window closed by its title bar has no picture left to save). Returns the frames
+    shown and whether the screenshot was saved."""
     window = renderer.window
     config = renderer.config
     controls = ViewerControls.looking(config.camera_position, config.camera_lookat)
     cursor = None
     shown = 0
-    while window.running and not controls.quit:
+    while window.running:
         for event in window.get_events(ti.ui.PRESS):
             controls.press(event.key)
         position = window.get_cursor_pos()
@@ -111,7 +113,7 @@ def run_viewer(renderer, source, frames: int | None = None,
         if controls.restart_requested:
             source.restart()
             controls.restart_requested = False
-        if controls.playing or controls.step_requested:
+        if (controls.playing or controls.step_requested) and not controls.quit:
             if not source.advance():
                 controls.playing = False
             controls.step_requested = False
@@ -119,14 +121,15 @@ def run_viewer(renderer, source, frames: int | None = None,
         renderer.camera.lookat(*controls.lookat)
         renderer.compose(source.positions, source.t, controls.show_body, controls.wireframe)
         overlay(window.get_gui(), source.lines(controls.playing))
-        shown += 1
-        if frames is not None and shown >= frames:
-            if screenshot is not None:
+        if controls.quit or (frames is not None and shown + 1 >= frames):
+            shown += not controls.quit  # q/Esc re-draws the picture already shown
+            if screenshot is not None:  # saved before show(), which hands the picture over
                 Path(screenshot).parent.mkdir(parents=True, exist_ok=True)
                 window.save_image(str(screenshot))
-            break
+            return shown, screenshot is not None
+        shown += 1
         window.show()
-    return shown
+    return shown, False
 
 
 def overlay(gui, lines: list[str]) -> None:

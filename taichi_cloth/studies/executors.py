@@ -115,10 +115,14 @@ class LocalExecutor:
                 start_worker()
             while len(finished) < len(by_key):
                 while idle and waiting:
+                    worker, tasks = idle.pop()
+                    if not worker.is_alive():  # died after its last result: no run to charge
+                        start_worker()
+                        continue
                     key, job = waiting.pop()
                     if key in finished:  # its first worker's result came after all
+                        idle.append((worker, tasks))
                         continue
-                    worker, tasks = idle.pop()
                     tasks.put((key, job))
                     busy[worker] = (tasks, key)
                 try:

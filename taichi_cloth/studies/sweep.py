@@ -46,6 +46,10 @@ STATUS = {0: "done", 1: "failed", 2: "bad input", 3: "unstable"}
 METRICS = ("frames", "particles", "integrator", "dt", "max_strain", "max_penetration",
            "max_self_intersections")
 TIMINGS = ("compile_seconds", "settle_seconds", "simulate_seconds", "run_seconds")
+# A worker's runtime is reset before a run when it holds more field trees than this: Taichi's CPU
+# and CUDA backends hold at most 512 per runtime, and each run allocates a few (3 for a small
+# sheet, more with effects), so a worker would fail after some hundred runs without it.
+FIELD_TREES_BEFORE_RESET = 256
 
 
 @dataclass(frozen=True)
@@ -164,11 +168,12 @@ def plan_from_file(path: Path) -> dict:
     scene = table.get("scene")
     if not isinstance(scene, str) or not scene:
         raise InputError(f"{path}: sweep.scene: the scene to sweep, a name or a .toml path")
-    if scene.endswith(".toml") and not Path(scene).is_absolute():
-        scene = str(path.parent / scene)
+    if scene.endswith(".toml"):
+        scene = str((path.parent / scene).resolve())
     frames = table.get("frames")
-    if frames is not None and (not isinstance(frames, int) or isinstance(frames, bool)):
-        raise InputError(f"{path}: sweep.frames: a whole number of frames")
+    if frames is not None and (not isinstance(frames, int) or isinstance(frames, bool)
+                               or frames < 1):
+        raise InputError(f"{path}: sweep.frames: a whole number of frames, at least 1")
     fixed = table.get("set", [])
     if not isinstance(fixed, list) or not all(isinstance(item, str) for item in fixed):
         raise InputError(f"{path}: sweep.set: a list of \"KEY=VALUE\" texts")
@@ -211,13 +216,19 @@ def run_job(job: SweepJob) -> dict:
     from taichi_cloth.config.scene import load_scene
     from taichi_cloth.output.replay import draw_cached_frame
     from taichi_cloth.output.run import run_scene
-    from taichi_cloth.runtime import start_taichi, taichi_started, taichi_threads
+    from taichi_cloth.runtime import (field_trees, reset_taichi, start_taichi, taichi_started,
+                                      taichi_threads)
     from taichi_cloth.studies.machine import machine_description
     started = time.perf_counter()
     folder = Path(job.folder)
+    for name in (RESULT_FILE, THUMBNAIL):  # an earlier run's (a sweep run again into its folder)
+        (folder / name).unlink(missing_ok=True)
+    earlier_stats = file_stamp(folder / "stats.json")
     row = job_row(job, 0, "")
     try:
         scene = load_scene(job.scene, job.overrides)
+        if taichi_started() and field_trees() > FIELD_TREES_BEFORE_RESET:
+            reset_taichi()
         start_taichi(scene.simulation.arch, threads=WORKER_THREADS)
         frames = scene.frame_count if job.frames is None else job.frames
         run_scene(scene, frames, folder, quiet=True)
@@ -226,7 +237,9 @@ def run_job(job: SweepJob) -> dict:
     except Exception as error:  # a fault of the program: this run's row says which
         row.update(exit_code=1, error=f"{type(error).__name__}: {' '.join(str(error).split())}")
     row["status"] = STATUS[row["exit_code"]]
-    ran = row["exit_code"] in (0, UnstableError.exit_code)  # else the folder holds no new run
+    # a run that stopped before its stats.json (an input error, a fault) left no run of its own
+    ran = row["exit_code"] in (0, UnstableError.exit_code) and \
+        file_stamp(folder / "stats.json") not in (None, earlier_stats)
     if ran:
         row.update(stats_columns(folder / "stats.json"))
     if ran and (folder / "cache").is_dir():
@@ -234,6 +247,7 @@ def run_job(job: SweepJob) -> dict:
             from taichi_cloth.output.cache import read_cache
             _, cached = read_cache(folder)
             write_png(folder / THUMBNAIL, draw_cached_frame(folder, cached[-1], THUMBNAIL_SIZE))
+            row["thumbnail"] = THUMBNAIL
         except (InputError, OSError, RuntimeError) as error:
             row["thumbnail_error"] = " ".join(str(error).split())
     row["run_seconds"] = time.perf_counter() - started
@@ -242,6 +256,16 @@ def run_job(job: SweepJob) -> dict:
                machine=machine, versions=package_versions(), overrides=list(job.overrides))
     write_json(folder / RESULT_FILE, row)
     return row
+
+
+def file_stamp(path: Path) -> tuple | None:
+    """(inode, modification time [ns]) of ``path``, None when there is none: every output is
+    renamed into place, so a file written again has a new stamp."""
+    try:
+        info = path.stat()
+    except OSError:
+        return None
+    return info.st_ino, info.st_mtime_ns
 
 
 def stats_columns(path: Path) -> dict:
@@ -286,7 +310,9 @@ def sweep(scene: str | None, grids: list[str], overrides: list[str], frames: int
     from taichi_cloth.studies.executors import Lost, make_executor
     from taichi_cloth.studies.sweep_sheet import write_contact_sheet
     plan = make_plan(scene, grids, overrides, frames, plan_path)
-    directory = Path(out) if out else OUTPUT_ROOT / "sweep" / safe_name(Path(plan.scene).stem)
+    # absolute, as every worker (a cluster's, on another machine) must find the same folder
+    directory = (Path(out) if out else OUTPUT_ROOT / "sweep" /
+                 safe_name(Path(plan.scene).stem)).resolve()
     check_writable(directory, "--out")
     jobs = plan.jobs(directory)
     recorded = {"format": FORMAT, **plan.document(), "runs": [asdict(job) for job in jobs]}
@@ -338,7 +364,10 @@ def make_plan(scene: str | None, grids: list[str], overrides: list[str], frames:
         raise InputError("--grid: a sweep needs at least one --grid KEY=V1,V2,...")
     if frames is not None and frames < 1:
         raise InputError(f"--frames {frames}: must be at least 1")
-    return SweepPlan(base["scene"], tuple(base["set"]) + tuple(overrides), tuple(axes.items()),
+    scene_path = base["scene"]
+    if scene_path.endswith(".toml"):  # a worker elsewhere must find it whatever its directory
+        scene_path = str(Path(scene_path).resolve())
+    return SweepPlan(scene_path, tuple(base["set"]) + tuple(overrides), tuple(axes.items()),
                      frames if frames is not None else base["frames"])
 
 

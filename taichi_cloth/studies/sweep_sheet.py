@@ -27,7 +27,6 @@ def tile_title(row: dict, keys: list[str]) -> str:
 
 def write_contact_sheet(target: Path, plan, rows: list[dict]) -> None:
     """``contact_sheet.png``: the runs of ``plan`` (``rows``: the table's rows in order)."""
-    from taichi_cloth.studies.sweep import THUMBNAIL
     keys = [key for key, _ in plan.grid]
     columns = min(MAX_COLUMNS, len(rows))
     lines = len(keys) + 1
@@ -38,8 +37,8 @@ def write_contact_sheet(target: Path, plan, rows: list[dict]) -> None:
     for axes in panels:
         axes.set_axis_off()
     for axes, row in zip(panels, rows):
-        thumbnail = Path(row.get("folder", "")) / THUMBNAIL
-        if thumbnail.is_file():  # an unstable run's: its last whole frame
+        thumbnail = Path(row.get("folder", "")) / row.get("thumbnail", "")
+        if row.get("thumbnail") and thumbnail.is_file():  # (an unstable run's: its last frame)
             axes.imshow(read_png(thumbnail))
         else:
             axes.imshow(np.full((3, 4), FAILED_GREY), cmap="gray", vmin=0, vmax=1)
