@@ -10,7 +10,9 @@ import pytest
 from taichi_cloth.cloth.garment import build_garment
 from taichi_cloth.config.scene import load_scene
 from taichi_cloth.errors import InputError
-from taichi_cloth.physics.timestep import choose_time_step, fixed_time_step, highest_frequency
+from taichi_cloth.physics.simulation import Simulation
+from taichi_cloth.physics.timestep import (IMPLICIT_PIN_TRAVEL, choose_time_step, fixed_time_step,
+                                          highest_frequency)
 
 FRAME = 1.0 / 30.0
 
@@ -179,6 +181,30 @@ def test_auto_implicit_step_is_half_a_frame():
     assert step.substeps_per_frame == 2
     assert step.dt == pytest.approx(FRAME / 2, rel=1e-15)
     assert step.stable_dt is None
+
+
+def test_auto_implicit_step_keeps_the_pins_travel_off_the_linearisation_small():
+    """h ≤ √(IMPLICIT_PIN_TRAVEL / a_pin), and the fewest substeps that keep it."""
+    for acceleration in (3.0, 6.0, 40.0):
+        step = choose_time_step("auto", FRAME, "implicit", damping_time=0.0, contact_modes=[],
+                                safety=0.8, pin_acceleration=lambda: acceleration,
+                                **one_spring(1e4))
+        longest = math.sqrt(IMPLICIT_PIN_TRAVEL / acceleration)
+        assert step.dt <= longest < FRAME / (step.substeps_per_frame - 1)
+        assert step.report()["pin_acceleration"] == acceleration
+
+
+def test_the_pins_peak_acceleration_goes_with_the_tempo_squared_and_sets_the_hulas_step():
+    """The hula's waist pins: a ∝ tempo² (the dance's shape fixed, its clock faster), so the
+    shipped 90 beats a minute keeps half a frame and 140 takes a third; a still body carries
+    pins that never accelerate."""
+    def simulation(*overrides):
+        return Simulation(load_scene("hula", ("cloth.resolution=[16, 6]",) + overrides))
+    usual, fast = simulation(), simulation("body.tempo=140")
+    ratio = fast.time_step.pin_acceleration / usual.time_step.pin_acceleration
+    assert ratio == pytest.approx((140 / 90) ** 2, rel=0.03)
+    assert (usual.time_step.substeps_per_frame, fast.time_step.substeps_per_frame) == (2, 3)
+    assert simulation("body.motion=still").time_step.pin_acceleration == 0.0
 
 
 def test_auto_explicit_euler_without_damping_is_refused():

@@ -278,7 +278,9 @@ def summary(stats: dict, directory: Path) -> str:
              f"{stats['dt']:.4g} s × {stats['substeps_per_frame']} a frame{retries}"]
     if step["requested"] == "auto":
         bound = "none" if step["stable_dt"] is None else f"{step['stable_dt']:.3g} s"
-        lines.append(f"  dt auto: ω_max {step['omega_max']:.3g} rad/s, stability bound {bound}")
+        pins = step.get("pin_acceleration")
+        lines.append(f"  dt auto: ω_max {step['omega_max']:.3g} rad/s, stability bound {bound}"
+                     + (f", pins' peak acceleration {pins:.3g} m/s²" if pins else ""))
     lines.append(f"  max strain {stats['max_strain']:.4f}, max penetration "
                  f"{stats['max_penetration'] * 1000:.2f} mm, at most "
                  f"{stats['max_self_intersections']} pairs of triangles through each other")

@@ -24,6 +24,8 @@ from taichi_cloth.errors import InputError
 from taichi_cloth.physics.control import Control
 
 SAMPLES_PER_FRAME = 8
+PEAK_SAMPLE_RATE = 60.0  # 1/s: poses a second sampled for the pins' peak acceleration
+PEAK_WINDOW = 10.0  # s: the longest stretch of the dance sampled for it (a dance loops)
 
 
 def bvh_path(scene: Scene) -> Path:
@@ -93,6 +95,19 @@ class BodyRig:
         origin, rotation, velocity, angular_velocity = self.pin_frames(pose)
         arm = np.einsum("pjk,pk->pj", rotation, self.pin_local)
         return origin + arm, velocity + np.cross(angular_velocity, arm)
+
+    def peak_pin_acceleration(self, duration: float) -> float:
+        """The largest acceleration [m/s²] of the carried pins over the first ``duration`` s
+        (at most ``PEAK_WINDOW``) of the motion, from their velocities ``PEAK_SAMPLE_RATE``
+        times a second (central in time); 0 when the body carries no pins."""
+        if not self.carries_pins or self.pin_local is None or not len(self.pin_local):
+            return 0.0
+        times = np.arange(0.0, min(duration, PEAK_WINDOW) + 1e-9, 1.0 / PEAK_SAMPLE_RATE)
+        if len(times) < 2:
+            return 0.0
+        velocities = np.stack([self.carried_pins(self.body.pose(t))[1] for t in times])
+        return float(np.linalg.norm(np.diff(velocities, axis=0), axis=2).max()
+                     * PEAK_SAMPLE_RATE)
 
     def prepare_frame(self, frame: int, still: bool = False) -> None:
         """Pose the body across the frame interval ``frame`` (t from frame/fps to

@@ -123,7 +123,14 @@ class Simulation:
             scene.simulation.dt, self.frame_duration, scene.simulation.integrator,
             garment.positions, model.host_spring_ends, model.host_stiffness, garment.mass,
             ~garment.pinned, model.dashpot_time or 0.0, contact_modes, scene.simulation.safety,
-            self.forces.coupled_effects)
+            self.forces.coupled_effects, self._peak_pin_acceleration)
+
+    def _peak_pin_acceleration(self) -> float:
+        """The largest acceleration [m/s²] of the pins the body carries during the scene's
+        dance (0 without such pins)."""
+        if self.body_rig is None:
+            return 0.0
+        return self.body_rig.peak_pin_acceleration(self.scene.scene.duration)
 
     def set_time_step(self, dt: float, substeps_per_frame: int) -> None:
         """Step with dt [s], ``substeps_per_frame`` of them per frame (dt · substeps = the frame's
