@@ -21,9 +21,9 @@ from taichi_cloth.studies.sweep import grid_axis, make_plan, plan_from_file, spl
 from worker_jobs import square_or_die
 
 ROOT = Path(__file__).resolve().parent.parent
-# a 2 × 2 sweep of a small sheet: two fabrics × two resolutions, 4 frames each
+# a 2 × 1 sweep of a small sheet: two fabrics at one resolution, 2 frames each
 SMALL = ["sweep", "sheet", "--grid", "cloth.material=silk,denim",
-         "--grid", "cloth.resolution=[5,5],[6,6]", "--frames", "2", "--quiet"]
+         "--grid", "cloth.resolution=[6,6]", "--frames", "2", "--quiet"]
 
 
 def physics_of(directory: Path) -> dict:
@@ -98,7 +98,7 @@ def test_a_sweep_gives_identical_stats_serially_locally_and_on_a_dask_cluster(tm
         assert main([*SMALL, "--cluster", cluster.scheduler_address,
                      "--out", str(tmp_path / "dask")]) == 0
     serial = physics_of(tmp_path / "serial")
-    assert len(serial) == 4
+    assert len(serial) == 2
     assert physics_of(tmp_path / "local") == serial
     assert physics_of(tmp_path / "dask") == serial
     table = json.loads((tmp_path / "dask" / "results.json").read_text())
@@ -106,7 +106,7 @@ def test_a_sweep_gives_identical_stats_serially_locally_and_on_a_dask_cluster(tm
     assert sum(table["machines"].values()) == 1 and not table["shared_machines"]
     local = json.loads((tmp_path / "local" / "results.json").read_text())
     assert local["shared_machines"] == {socket.gethostname(): 2}  # two runs side by side
-    run = table["runs"][3]
+    run = table["runs"][1]
     assert (run["cloth.material"], run["cloth.resolution"], run["status"]) == \
         ("denim", "[6,6]", "done")
     assert run["threads"] == 1 and run["versions"]["taichi"] == "1.7.4"
@@ -115,10 +115,10 @@ def test_a_sweep_gives_identical_stats_serially_locally_and_on_a_dask_cluster(tm
                        .read_text())
     assert scene["document"]["cloth"]["material"] == "denim"  # the resolved scene is kept
     csv = (tmp_path / "local" / "results.csv").read_text().splitlines()
-    assert len(csv) == 5 and csv[0].startswith("index,name,cloth.material,cloth.resolution")
+    assert len(csv) == 3 and csv[0].startswith("index,name,cloth.material,cloth.resolution")
     for name in ("serial", "local", "dask"):
         assert (tmp_path / name / "contact_sheet.png").stat().st_size > 0
-        assert len(list((tmp_path / name / "runs").glob("*/thumbnail.png"))) == 4
+        assert len(list((tmp_path / name / "runs").glob("*/thumbnail.png"))) == 2
 
 
 def test_a_failed_run_is_a_row_and_the_others_complete(tmp_path):
@@ -135,7 +135,8 @@ def test_a_failed_run_is_a_row_and_the_others_complete(tmp_path):
     assert main(["sweep", "sheet", "--grid", "cloth.material=silk,nylon",
                  "--grid", "cloth.resolution=[5,5]", "--frames", "2", "--workers", "1",
                  "--set", "simulation.settle=0.5", "--set", "simulation.integrator=euler",
-                 "--set", "simulation.dt=0.05", "--quiet", "--out", str(tmp_path)]) == 0
+                 "--set", "simulation.dt=0.05", "--set", "simulation.max_retries=0", "--quiet",
+                 "--out", str(tmp_path)]) == 0
     again = json.loads((tmp_path / "results.json").read_text())["runs"]
     assert [row["status"] for row in again] == ["unstable", "bad input"]
     assert again[0].get("max_strain") is None and "thumbnail" not in again[0]

@@ -94,6 +94,11 @@ def run_in_folder(scene: Scene, frame_count: int, folder: OwnedFolder, quiet: bo
     from taichi_cloth.physics.simulation import Simulation
     from taichi_cloth.physics.settling import settle
     directory = folder.directory
+    if size is not None:  # a bad texture is said before anything is simulated
+        from taichi_cloth.render.texture import load_texture, texture_path
+        image = texture_path(scene)
+        if image is not None:
+            load_texture(image)
     announce(scene.name, "building the cloth, the body and the effects", quiet)
     if "usd" in meshes:  # a missing usd-core is said before anything is simulated
         from taichi_cloth.output.usd import import_pxr
