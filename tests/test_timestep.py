@@ -184,26 +184,32 @@ def test_auto_implicit_step_is_half_a_frame():
 
 
 def test_auto_implicit_step_keeps_the_pins_travel_off_the_linearisation_small():
-    """h ≤ √(IMPLICIT_PIN_TRAVEL / a_pin), and the fewest substeps that keep it."""
-    for acceleration in (3.0, 6.0, 40.0):
+    """h ≤ √(IMPLICIT_PIN_TRAVEL · ℓ_pin / a_pin), and the fewest substeps that keep it."""
+    for acceleration, spacing in ((3.0, 0.02), (6.0, 0.02), (6.0, 0.01), (40.0, 0.005)):
         step = choose_time_step("auto", FRAME, "implicit", damping_time=0.0, contact_modes=[],
-                                safety=0.8, pin_acceleration=lambda: acceleration,
+                                safety=0.8, pin_drive=lambda: (acceleration, spacing),
                                 **one_spring(1e4))
-        longest = math.sqrt(IMPLICIT_PIN_TRAVEL / acceleration)
+        longest = math.sqrt(IMPLICIT_PIN_TRAVEL * spacing / acceleration)
         assert step.dt <= longest < FRAME / (step.substeps_per_frame - 1)
         assert step.report()["pin_acceleration"] == acceleration
+        assert step.report()["pin_spacing"] == spacing
 
 
-def test_the_pins_peak_acceleration_goes_with_the_tempo_squared_and_sets_the_hulas_step():
-    """The hula's waist pins: a ∝ tempo² (the dance's shape fixed, its clock faster), so the
-    shipped 90 beats a minute keeps half a frame and 140 takes a third; a still body carries
-    pins that never accelerate."""
+def test_the_pins_drive_goes_with_the_tempo_squared_and_the_spacing_and_sets_the_step():
+    """The hula's waist pins: a ∝ tempo² (the dance's shape fixed, its clock faster) and ℓ_pin
+    the spacing down the skirt, so the shipped 90 beats a minute at 64 × 28 keeps half a frame,
+    while 140 beats a minute, or 90 on a mesh twice as fine, take a third; a still body
+    carries pins that never accelerate."""
     def simulation(*overrides):
-        return Simulation(load_scene("hula", ("cloth.resolution=[16, 6]",) + overrides))
+        return Simulation(load_scene("hula", overrides))
     usual, fast = simulation(), simulation("body.tempo=140")
+    fine = simulation("cloth.resolution=[128, 56]")
     ratio = fast.time_step.pin_acceleration / usual.time_step.pin_acceleration
     assert ratio == pytest.approx((140 / 90) ** 2, rel=0.03)
-    assert (usual.time_step.substeps_per_frame, fast.time_step.substeps_per_frame) == (2, 3)
+    length = load_scene("hula").cloth.length
+    assert usual.time_step.pin_spacing == pytest.approx(length / 27, rel=0.05)  # 28 rows
+    assert fine.time_step.pin_spacing == pytest.approx(length / 55, rel=0.05)
+    assert [s.time_step.substeps_per_frame for s in (usual, fast, fine)] == [2, 3, 3]
     assert simulation("body.motion=still").time_step.pin_acceleration == 0.0
 
 
@@ -218,3 +224,22 @@ def test_a_requested_step_bypasses_the_estimate():
     step = choose_time_step(0.002, FRAME, "euler", damping_time=0.0, contact_modes=[],
                             safety=0.8, **one_spring(1e6))
     assert (step.substeps_per_frame, step.omega_max, step.stable_dt) == (17, None, None)
+
+
+def test_a_frame_stretched_past_redo_strain_is_redone_at_a_smaller_step():
+    """With ``simulation.redo_strain`` below any strain, the first frame is redone at dt/2 (and
+    dt/4 while halving still lowers the strain): the kept state is, bit for bit, that frame
+    simulated at the smaller step, and the run's step comes back afterwards."""
+    base = ("cloth.resolution=[6, 6]", "simulation.integrator=symplectic")  # dt "auto"
+    guarded = Simulation(load_scene("sheet", base + ("simulation.redo_strain=1e-9",)))
+    dt = guarded.time_step.dt
+    record = guarded.run(1)
+    halvings = record.frames[1].extra["strain_halvings"]
+    assert halvings in (1, 2) and guarded.time_step.dt == dt
+    reference = Simulation(load_scene("sheet", base + (f"simulation.dt={dt / 2 ** halvings!r}",)))
+    reference.run(1)
+    assert reference.time_step.substeps_per_frame == \
+        2 ** halvings * guarded.time_step.substeps_per_frame
+    np.testing.assert_array_equal(guarded.positions(), reference.positions())
+    unguarded = Simulation(load_scene("sheet", base))
+    assert "strain_halvings" not in unguarded.run(1).frames[1].extra

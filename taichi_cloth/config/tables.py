@@ -42,6 +42,9 @@ class SimulationConfig:
                                doc="particle speed [m/s] at which a frame counts as exploded")
     max_retries: int = setting(4, "int", low=0, high=20,
                                doc="times a bad frame is redone with the step halved")
+    redo_strain: float = setting(0.0, "float", low=0.0,
+                                 doc="a frame that ends with a larger max strain is redone at "
+                                     "half, then a quarter of the step (0: never)")
     settle: float = setting(0.0, "float", low=0.0, high=60.0,
                             doc="seconds at most that the garment settles on the body, held "
                                 "still, before frame 0 (0: start from the pattern shape)")

@@ -19,6 +19,7 @@ frame is written.
 """
 
 import dataclasses
+import math
 import sys
 import time
 from dataclasses import dataclass
@@ -43,7 +44,9 @@ from taichi_cloth.physics.rig import BodyRig
 from taichi_cloth.physics.timestep import TimeStep, choose_time_step
 from taichi_cloth.runtime import start_taichi
 
-TUNNELLING_HALVINGS = 2  # a frame through which the cloth crossed itself is redone at dt/2, dt/4
+REDO_HALVINGS = 2  # a frame that tunnelled or overstretched is redone at dt/2, then dt/4
+REDO_GAIN = 0.9  # a halving that leaves the strain above this fraction of the try before it
+# shows a strain the step does not make (a tight garment): the frame is not halved again
 
 
 @dataclass(frozen=True)
@@ -80,6 +83,7 @@ class Simulation:
                       f"through each other at rest; the cloth starts tangled there",
                       file=sys.stderr)
         self.guards_crossings = "self_collision" in scene.effects  # ``guarded_frame``
+        self.redo_strain = scene.simulation.redo_strain  # ``_advance_refining``
         self._crossings = None  # crossing pairs in the current state, when counted
         self.settle_report = None  # what ``settling.settle`` did (a resumed run copies it back)
         self.model = Model(self.garment, scene.simulation.precision,
@@ -123,14 +127,21 @@ class Simulation:
             scene.simulation.dt, self.frame_duration, scene.simulation.integrator,
             garment.positions, model.host_spring_ends, model.host_stiffness, garment.mass,
             ~garment.pinned, model.dashpot_time or 0.0, contact_modes, scene.simulation.safety,
-            self.forces.coupled_effects, self._peak_pin_acceleration)
+            self.forces.coupled_effects, self._pin_drive)
 
-    def _peak_pin_acceleration(self) -> float:
-        """The largest acceleration [m/s²] of the pins the body carries during the scene's
-        dance (0 without such pins)."""
+    def _pin_drive(self) -> tuple[float, float]:
+        """(the largest acceleration [m/s²] of the pins the body carries during the scene's
+        dance, the median rest length [m] of the stretch springs that hang from a pin, one end
+        pinned); (0, 0) without such pins."""
         if self.body_rig is None:
-            return 0.0
-        return self.body_rig.peak_pin_acceleration(self.scene.scene.duration)
+            return 0.0, 0.0
+        acceleration = self.body_rig.peak_pin_acceleration(self.scene.scene.duration)
+        ends = self.model.host_spring_ends[:self.model.stretch_count]
+        hanging = self.garment.pinned[ends].sum(axis=1) == 1
+        if acceleration == 0 or not hanging.any():
+            return 0.0, 0.0
+        return acceleration, float(np.median(
+            self.model.host_rest_length[:self.model.stretch_count][hanging]))
 
     def set_time_step(self, dt: float, substeps_per_frame: int) -> None:
         """Step with dt [s], ``substeps_per_frame`` of them per frame (dt · substeps = the frame's
@@ -217,6 +228,8 @@ class Simulation:
                  for name, value in effect.frame_metrics(x).items()}
         if self.guards_crossings:
             extra["tunnelling_halvings"] = halvings
+        if self.redo_strain > 0:
+            extra["strain_halvings"] = halvings
         return FrameMetrics(
             frame=frame, t=self.frame_time(frame), kinetic_energy=kinetic,
             potential_energy=potential, max_strain=float(np.max(strain)),
@@ -231,14 +244,13 @@ class Simulation:
         """Advance to ``frame`` and check it (``still``: a settling frame, ``physics.settling``). A bad
         frame is rolled back and retried with the step halved (the smaller step is kept for the
         rest of the run), up to ``simulation.max_retries`` times; then ``UnstableError``.
-        Nothing non-finite leaves. With self-collision declared, each try is itself guarded
-        against tunnelling (``_advance_without_tunnelling``)."""
+        Nothing non-finite leaves. With self-collision declared or ``simulation.redo_strain``
+        set, each try is itself refined (``_advance_refining``)."""
         self.backup.copy_from(self.state_in)
         if self.guards_crossings and self._crossings is None:
             self._crossings = self.intersections.count(self.positions())
         for attempt in range(self.scene.simulation.max_retries + 1):
-            problem, x, v, crossings, halvings = self._advance_without_tunnelling(
-                frame, record, still)
+            problem, x, v, crossings, halvings = self._advance_refining(frame, record, still)
             if problem is None:
                 self._crossings = crossings
                 return self.measure(frame, x, v, crossings, halvings)
@@ -256,17 +268,25 @@ class Simulation:
         raise UnstableError(f"{where}: the cloth {problem} with integrator '{integrator}' "
                             f"at dt = {self.time_step.dt:.6g} s{halvings}; {advice}", frame)
 
-    def _advance_without_tunnelling(self, frame: int, record: RunRecord, still: bool):
+    def _advance_refining(self, frame: int, record: RunRecord, still: bool):
         """One try at ``frame`` from the backed-up state: (problem or None, x, v, crossing pairs
-        or None, halvings). With self-collision declared, a frame that ends with more pairs of
-        triangles through each other than it began with has let the cloth pass through itself
-        within a step (a penalty acts only once the layers are within its thickness): it is
-        redone at half the step, then a quarter (``TUNNELLING_HALVINGS``), and the last try is
-        kept, its crossings in the metric. The step goes back to the run's afterwards, so a
-        crossing that a smaller step cannot prevent costs one frame, not the run."""
+        or None, halvings). A frame is redone at half the step, then a quarter
+        (``REDO_HALVINGS``), the last try kept (its crossings and strain in the metrics), when
+        it ends
+        - with more pairs of triangles through each other than it began with, self-collision
+          declared: the cloth passed through itself within a step (a penalty acts only once the
+          layers are within its thickness);
+        - with a larger max strain than ``simulation.redo_strain`` (when set): a contact that
+          began within a large step, or a pin pulling hard, stretched the cloth further than a
+          smaller step would; unless a halving left the strain above ``REDO_GAIN`` of the try
+          before it (the strain is the garment's, not the step's).
+        The step goes back to the run's afterwards, so a frame that a smaller step cannot mend
+        costs that frame, not the run."""
         dt, substeps = self.time_step.dt, self.time_step.substeps_per_frame
         crossings = None
-        for halvings in range(TUNNELLING_HALVINGS + 1 if self.guards_crossings else 1):
+        refines = self.guards_crossings or self.redo_strain > 0
+        strain_before = math.inf
+        for halvings in range(REDO_HALVINGS + 1 if refines else 1):
             if halvings:
                 self.state_in.copy_from(self.backup)
                 self.set_time_step(dt / 2 ** halvings, substeps * 2 ** halvings)
@@ -278,10 +298,18 @@ class Simulation:
                 problem = self.state_problem(x, v)
             except SolverBreakdown as breakdown:
                 problem = f"could not be solved for ({breakdown})"
-            if problem is not None or not self.guards_crossings:
+            if problem is not None or not refines:
                 break
-            crossings = self.intersections.count(x)
-            if crossings <= self._crossings:
+            tunnelled = False
+            if self.guards_crossings:
+                crossings = self.intersections.count(x)
+                tunnelled = crossings > self._crossings
+            overstretched = False
+            if self.redo_strain > 0 and self.model.stretch_count:
+                strain = float(np.max(stretch_strain(self.model, x)))
+                overstretched = strain > self.redo_strain and strain < REDO_GAIN * strain_before
+                strain_before = strain
+            if not (tunnelled or overstretched):
                 break
         self.set_time_step(dt, substeps)
         return problem, x, v, crossings, halvings

@@ -11,12 +11,15 @@ the friction damper) bound the step too. The step is then ``safety`` × the inte
 for all modes up to ω_max with the springs' Rayleigh damping (``integrators.stability``).
 Backward Euler is stable at any step, so its step is chosen for accuracy instead:
 ``IMPLICIT_FRAME_FRACTION`` of a frame (1/60 s at 30 fps), the body's motion resolved, and no
-longer than √(``IMPLICIT_PIN_TRAVEL`` / a_pin), a_pin the largest acceleration of the pins the
-body carries: one linearised step errs by ~a_pin·h² where the pins drag the cloth, and that
-error is left in the springs next to the pins as strain (measured on the 64 × 28 cotton hula at
-1/60 s, max strain 2.0 % at 90 beats a minute, a_pin·h² = 0.70 mm; 4.1 % at 120, 1.25 mm; 5.5 %
-at 140, 1.70 mm; and 0.6 % at 140 with 1/120 s, 0.43 mm; the strain is in the row below the
-waist, 5–8 cm from any capsule, and a tighter CG tolerance leaves it: 5.0 % at 10⁻³).
+longer than √(``IMPLICIT_PIN_TRAVEL`` · ℓ_pin / a_pin), a_pin the largest acceleration of the
+pins the body carries and ℓ_pin the median rest length of the springs that hang from them (one
+end pinned): one linearised step errs by ~a_pin·h² where the pins drag the cloth, and that
+error is left as strain, of about a_pin·h²/ℓ_pin, in the springs next to the pins. Measured on
+the cotton hula at 1/60 s, max strain in the row below the waist (5–8 cm from any capsule; a CG
+tolerance of 10⁻³ instead of 3·10⁻³ does not remove it): 64 × 28 (ℓ_pin 2.07 cm) 2.0 % at 90
+beats a minute (a_pin·h²/ℓ_pin = 0.035), 4.1 % at 120 (0.061), 5.5 % at 140 (0.084);
+128 × 56 (1.02 cm) at 90: 8.0 % (0.070), and 2.0 % at 1/90 s (0.031). ``IMPLICIT_PIN_TRAVEL``
+= 0.045 keeps 64 × 28 at 90 beats a minute on 1/60 s and gives the other three 1/90 s.
 A frame is then split into a whole number of equal substeps not longer than that.
 """
 
@@ -29,7 +32,7 @@ from taichi_cloth.errors import InputError
 from taichi_cloth.physics.integrators.stability import largest_stable_step
 
 IMPLICIT_FRAME_FRACTION = 0.5
-IMPLICIT_PIN_TRAVEL = 0.8e-3  # m: the largest a_pin·h² of a backward Euler step (docstring)
+IMPLICIT_PIN_TRAVEL = 0.045  # the largest a_pin·h²/ℓ_pin of a backward Euler step (docstring)
 
 
 @dataclass(frozen=True)
@@ -43,10 +46,12 @@ class TimeStep:
     omega_max: float | None = None
     stable_dt: float | None = None
     pin_acceleration: float | None = None  # m/s², a_pin of backward Euler's auto step
+    pin_spacing: float | None = None  # m, ℓ_pin of backward Euler's auto step
 
     def report(self) -> dict:
         return {"requested": self.requested, "omega_max": self.omega_max,
-                "stable_dt": self.stable_dt, "pin_acceleration": self.pin_acceleration}
+                "stable_dt": self.stable_dt, "pin_acceleration": self.pin_acceleration,
+                "pin_spacing": self.pin_spacing}
 
 
 def stiffness_product(ends, stiffness, directions, u):
@@ -97,11 +102,12 @@ def fixed_time_step(requested: float, frame_duration: float) -> TimeStep:
 
 def choose_time_step(requested, frame_duration: float, integrator: str, positions, ends, stiffness,
                      mass, free, damping_time: float, contact_modes, safety: float,
-                     coupled=(), pin_acceleration=lambda: 0.0) -> TimeStep:
+                     coupled=(), pin_drive=lambda: (0.0, 0.0)) -> TimeStep:
     """The substep for a frame of ``frame_duration`` [s]; ``requested`` is seconds or "auto".
     contact_modes: (k̂ [1/s²], ζ) of each declared contact (collision, ground); coupled: the
-    effects whose Hessian adds to the springs' (``highest_frequency``); pin_acceleration: a
-    function giving a_pin [m/s²] (module docstring), called for backward Euler's auto step."""
+    effects whose Hessian adds to the springs' (``highest_frequency``); pin_drive: a function
+    giving (a_pin [m/s²], ℓ_pin [m]) (module docstring), called for backward Euler's auto
+    step."""
     if requested != "auto":
         return fixed_time_step(requested, frame_duration)
     omega_spring = highest_frequency(positions, ends, stiffness, mass, free, coupled=coupled)
@@ -109,12 +115,12 @@ def choose_time_step(requested, frame_duration: float, integrator: str, position
     omega_max = math.sqrt(omega_spring ** 2 + contact_stiffness)
     if integrator == "implicit":
         longest = IMPLICIT_FRAME_FRACTION * frame_duration
-        acceleration = pin_acceleration()
+        acceleration, spacing = pin_drive()
         if acceleration > 0:
-            longest = min(longest, math.sqrt(IMPLICIT_PIN_TRAVEL / acceleration))
+            longest = min(longest, math.sqrt(IMPLICIT_PIN_TRAVEL * spacing / acceleration))
         substeps = max(1, math.ceil(frame_duration / longest - 1e-9))
         return TimeStep(frame_duration / substeps, substeps, "auto", omega_max, None,
-                        acceleration)
+                        acceleration, spacing)
     stable = largest_stable_step(integrator, omega_max, damping_time, contact_modes)
     if stable <= 0.0:
         raise InputError(f"simulation.dt: \"auto\" finds no stable step for {integrator} "
