@@ -112,10 +112,18 @@ class Renderer:
         self.camera.lookat(*lookat)
         self.camera.up(0.0, 1.0, 0.0)
         self.camera.fov(config.fov)
+        self.drawn = False  # whether a frame was read back yet (``draw``)
 
     def draw(self, positions, t: float) -> np.ndarray:
         """The frame with the cloth at ``positions`` (the simulation's x field) and the body at
-        time ``t`` [s], as an (height, width, 3) uint8 image."""
+        time ``t`` [s], as an (height, width, 3) uint8 image. The first call draws the frame
+        twice and keeps the second: GGUI builds its pipelines on the first draw, and once (of
+        six fresh ``render hula`` runs on lavapipe) that first image showed the body without
+        the cloth."""
+        if not self.drawn:
+            self.compose(positions, t)
+            self.window.get_image_buffer_as_numpy()
+            self.drawn = True
         self.compose(positions, t)
         image = self.window.get_image_buffer_as_numpy()
         return np.round(np.clip(image[:, ::-1, :3].transpose(1, 0, 2), 0, 1) * 255).astype(np.uint8)
