@@ -22,6 +22,11 @@ def stretch_strain(model, positions: np.ndarray) -> np.ndarray:
     return (length - rest) / rest
 
 
+def largest_stretch_strain(model, positions: np.ndarray) -> float:
+    """The largest (l − L) / L over the stretch springs (0 without any)."""
+    return float(np.max(stretch_strain(model, positions))) if model.stretch_count else 0.0
+
+
 def surface_samples(positions: np.ndarray, edges: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     """Points that stand for the whole cloth surface (P, 3) [m]: the particles, the midpoints of
     the edges (E, 2) and the centroids of the triangles (T, 3), in that order. A capsule can

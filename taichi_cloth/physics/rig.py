@@ -98,8 +98,8 @@ class BodyRig:
 
     def peak_pin_acceleration(self, duration: float) -> float:
         """The largest acceleration [m/s²] of the carried pins over the first ``duration`` s
-        (at most ``PEAK_WINDOW``) of the motion, from their velocities ``PEAK_SAMPLE_RATE``
-        times a second (central in time); 0 when the body carries no pins."""
+        (at most ``PEAK_WINDOW``) of the motion: the differences of their velocities sampled
+        ``PEAK_SAMPLE_RATE`` times a second over the interval; 0 when the body carries no pins."""
         if not self.carries_pins or self.pin_local is None or not len(self.pin_local):
             return 0.0
         times = np.arange(0.0, min(duration, PEAK_WINDOW) + 1e-9, 1.0 / PEAK_SAMPLE_RATE)

@@ -8,20 +8,13 @@ import time
 import numpy as np
 
 from taichi_cloth.cloth.garment import settling_ripple
-from taichi_cloth.physics.metrics import RunRecord, stretch_strain
+from taichi_cloth.physics.metrics import RunRecord, largest_stretch_strain
 
 SETTLE_CHECK_INTERVAL = 1.0 / 240.0  # s of settling between two checks of the kinetic energy
 # At rest, the largest stretch strain moves by less than this between two checks: on a fine
 # mesh a local wave after an impact on the hips (3 % strain on the 128 × 56 cotton hula) hides
 # in a mean speed already below settle_speed.
 SETTLED_STRAIN_CHANGE = 1e-3
-
-
-def largest_strain(simulation) -> float:
-    """The largest stretch strain (l − L)/L of the garment now (0 without stretch springs)."""
-    if not simulation.model.stretch_count:
-        return 0.0
-    return float(np.max(stretch_strain(simulation.model, simulation.positions())))
 
 
 def settle(simulation, run_record: RunRecord) -> dict | None:
@@ -65,7 +58,8 @@ def settle(simulation, run_record: RunRecord) -> dict | None:
         v = simulation.state_in.v.to_numpy().astype(np.float64)
         speed_sq = np.sum(v * v, axis=1)
         mean_speed = simulation.mean_free_speed(v)
-        strain_before, strain = strain, largest_strain(simulation)
+        strain_before = strain
+        strain = largest_stretch_strain(simulation.model, simulation.positions())
         at_rest = since_zeroed >= checks_per_frame and mean_speed < settings.settle_speed \
             and abs(strain - strain_before) < SETTLED_STRAIN_CHANGE
         kinetic = 0.5 * float(np.sum(mass * speed_sq))

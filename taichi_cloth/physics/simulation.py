@@ -36,8 +36,8 @@ from taichi_cloth.physics.forces import Forces
 from taichi_cloth.physics.integrators import INTEGRATORS, make_integrator
 from taichi_cloth.physics.integrators.conjugate_gradient import SolverBreakdown
 from taichi_cloth.physics.intersections import IntersectionCounter
-from taichi_cloth.physics.metrics import (FrameMetrics, RunRecord, spring_energy, stretch_strain,
-                                          surface_samples)
+from taichi_cloth.physics.metrics import (FrameMetrics, RunRecord, largest_stretch_strain,
+                                          spring_energy, surface_samples)
 from taichi_cloth.physics.model import Model
 from taichi_cloth.physics.packed_grid import packed_grid_for
 from taichi_cloth.physics.rig import BodyRig
@@ -190,7 +190,7 @@ class Simulation:
         settings = self.scene.simulation
         if not (np.isfinite(x).all() and np.isfinite(v).all()):
             return "became non-finite"
-        strain = float(np.max(stretch_strain(self.model, x))) if self.model.stretch_count else 0.0
+        strain = largest_stretch_strain(self.model, x)
         if strain > settings.blowup_strain:
             return f"exploded (max strain {strain:.3g} > simulation.blowup_strain " \
                    f"{settings.blowup_strain:g})"
@@ -214,7 +214,6 @@ class Simulation:
         (``intersections``; ``crossings`` when already counted), centre of mass; with
         self-collision, how many times the frame's step was halved against tunnelling."""
         mass = self.model.host_mass
-        strain = stretch_strain(self.model, x) if self.model.stretch_count else np.zeros(1)
         kinetic = 0.5 * float(np.sum(mass * np.sum(v * v, axis=1)))
         potential = sum(effect.potential_energy(x, mass) for effect in self.effects) \
             + spring_energy(self.model, x)
@@ -232,7 +231,7 @@ class Simulation:
             extra["strain_halvings"] = halvings
         return FrameMetrics(
             frame=frame, t=self.frame_time(frame), kinetic_energy=kinetic,
-            potential_energy=potential, max_strain=float(np.max(strain)),
+            potential_energy=potential, max_strain=largest_stretch_strain(self.model, x),
             max_penetration=float(depth.max(initial=0.0)),
             penetrating_samples=int(np.count_nonzero(depth)),
             mean_speed=self.mean_free_speed(v),
@@ -305,8 +304,8 @@ class Simulation:
                 crossings = self.intersections.count(x)
                 tunnelled = crossings > self._crossings
             overstretched = False
-            if self.redo_strain > 0 and self.model.stretch_count:
-                strain = float(np.max(stretch_strain(self.model, x)))
+            if self.redo_strain > 0:
+                strain = largest_stretch_strain(self.model, x)
                 overstretched = strain > self.redo_strain and strain < REDO_GAIN * strain_before
                 strain_before = strain
             if not (tunnelled or overstretched):
