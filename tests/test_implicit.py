@@ -206,18 +206,49 @@ def test_the_precomputed_operator_equals_the_jacobian_products(moving):
                                rtol=1e-10, atol=1e-12 * np.abs(blocks).max())
 
 
-def stops_within_the_cold_start_tolerance(integrator, scratch) -> bool:
-    """Did the last solve stop at r·P⁻¹r ≤ tol²·r₀·P⁻¹r₀, with r = S·(rhs − A·δ) recomputed
-    and r₀ = S·rhs the residual of the cold start δ = 0 (1 % margin for the rounding of the
-    recursive residual)? ``scratch``: a vector field of the particle count."""
-    free = integrator.model.particle_inv_mass.to_numpy()[:, None] > 0
-    integrator.evaluate_operator(integrator.delta_v, scratch)
-    rhs = integrator.rhs.to_numpy() * free
-    residual = rhs - scratch.to_numpy() * free
-    preconditioner = integrator.inverse_block.to_numpy()
+def assembled_system(integrator, scratch):
+    """A (3n × 3n) of the last ``_prepare``, column by column from ``evaluate_operator``, and
+    the free particles' mask."""
+    n = integrator.model.particle_count
+    columns = []
+    for c in range(3 * n):
+        unit = np.zeros(3 * n)
+        unit[c] = 1.0
+        integrator.backward.from_numpy(unit.reshape(n, 3))  # its own scratch: overwritten per step
+        integrator.evaluate_operator(integrator.backward, scratch)
+        columns.append(scratch.to_numpy().ravel())
+    return np.array(columns).T, integrator.model.particle_inv_mass.to_numpy() > 0
+
+
+def preconditioned_norm_sq(integrator, scratch):
+    """r ↦ r·M⁻¹·r for the free particles' system, M the integrator's preconditioner built here
+    from A assembled anew: its 3×3 diagonal blocks D (block Jacobi, M = D) or symmetric block
+    Gauss–Seidel M = W·D⁻¹·Wᵀ, W = D + (A's blocks below the diagonal)."""
+    a, free = assembled_system(integrator, scratch)
+    dofs = np.flatnonzero(np.repeat(free, 3))
+    a = a[np.ix_(dofs, dofs)]
+    block_of = np.arange(len(dofs)) // 3
+    diagonal = np.where(block_of[:, None] == block_of[None, :], a, 0.0)
+    lower = np.where(block_of[:, None] >= block_of[None, :], a, 0.0)
 
     def norm_sq(r):
-        return np.einsum("ik,ikl,il->", r, preconditioner, r)
+        r = r[free].ravel()
+        if not integrator.gauss_seidel:
+            return r @ np.linalg.solve(diagonal, r)
+        y = np.linalg.solve(lower, r)
+        return y @ diagonal @ y
+    return norm_sq
+
+
+def stops_within_the_cold_start_tolerance(integrator, scratch) -> bool:
+    """Did the last solve stop at r·M⁻¹r ≤ tol²·r₀·M⁻¹r₀, with r = S·(rhs − A·δ) recomputed,
+    r₀ = S·rhs the residual of the cold start δ = 0 and M the preconditioner
+    (``preconditioned_norm_sq``; 1 % margin for the rounding of the recursive residual)?
+    ``scratch``: a vector field of the particle count."""
+    integrator.evaluate_operator(integrator.delta_v, scratch)
+    rhs = integrator.rhs.to_numpy()
+    residual = rhs - scratch.to_numpy()
+    norm_sq = preconditioned_norm_sq(integrator, scratch)
     return norm_sq(residual) <= (1.01 * integrator.tolerance) ** 2 * norm_sq(rhs)
 
 
@@ -236,12 +267,12 @@ def run_steps(integrator, state, state_out, x, v, t, h, steps, scratch):
 
 
 def test_the_one_launch_serial_solve_and_the_parallel_one_take_the_same_steps(moving):
-    """The serial solve (one launch, one thread) and the per-iteration parallel one run the same
-    block functions: same iterations, same velocities; every solve meets the tolerance of the
-    cold start."""
+    """With block Jacobi, the serial solve (one launch, one thread) and the per-iteration
+    parallel one run the same block functions: same iterations, same velocities; every solve
+    meets the tolerance of the cold start."""
     runs = {}
     for serial in (True, False):
-        integrator = BackwardEuler(moving.forces, moving.physics.control)
+        integrator = BackwardEuler(moving.forces, moving.physics.control, gauss_seidel=False)
         integrator.serial = serial
         velocities = run_steps(integrator, moving.state, moving.state_out, moving.x, moving.v,
                                moving.t, moving.h, 5, moving.out)
@@ -250,12 +281,11 @@ def test_the_one_launch_serial_solve_and_the_parallel_one_take_the_same_steps(mo
     np.testing.assert_allclose(runs[True][1], runs[False][1], rtol=0, atol=1e-12)
 
 
-def test_the_warm_start_cuts_iterations_and_keeps_the_cold_start_accuracy():
-    """A horizontal sheet falling and swinging from two corners: starting CG from the
-    extrapolated velocity change takes far fewer iterations once the motion is under way, every
-    solve still meets the cold start's tolerance, and the velocities stay as close to a solve
-    at tolerance 1e-9 as the cold start's (measured: 0.014 against 0.006 m/s at worst, at a
-    top speed of 1.3 m/s)."""
+def falling_sheet_runs(variants: dict) -> dict:
+    """A horizontal 10×10 sheet of cotton's stretch stiffness falling and swinging from two
+    corners, 12 steps of 1/60 s with each variant of ``BackwardEuler``'s settings: per variant,
+    the CG iterations of each step and the velocities after it (every solve checked with
+    ``stops_within_the_cold_start_tolerance``)."""
     scene = load_scene("sheet", ("cloth.resolution=[10, 10]", "cloth.orientation=horizontal",
                                  "cloth.bending=springs",
                                  "cloth.material.stretch_stiffness=12258.3125"))
@@ -263,20 +293,43 @@ def test_the_warm_start_cuts_iterations_and_keeps_the_cold_start_accuracy():
     model = Model(garment, "f64", 1.0)
     physics = assemble(model, [(EFFECT_BY_NAME[name], settings)
                                for name, settings in scene.effects.items()])
-    forces = physics.forces
     state, state_out = model.state(), model.state()
     scratch = ti.Vector.field(3, ti.f64, model.particle_count)
     runs = {}
-    for name, settings in (("warm", {}), ("cold", {"warm_start": False}),
-                           ("tight", {"tolerance": 1e-9, "max_iterations": 5000})):
-        integrator = BackwardEuler(forces, physics.control, **settings)
+    for name, settings in variants.items():
+        integrator = BackwardEuler(physics.forces, physics.control, **settings)
         velocities = run_steps(integrator, state, state_out, garment.positions,
                                np.zeros_like(garment.positions), 0.0, 1.0 / 60.0, 12, scratch)
         runs[name] = integrator.take_iterations(), velocities
+    return runs
+
+
+TIGHT = {"tolerance": 1e-9, "max_iterations": 5000}
+
+
+def test_the_warm_start_cuts_iterations_and_keeps_the_cold_start_accuracy():
+    """Starting CG from the extrapolated velocity change takes far fewer iterations once the
+    motion is under way, every solve still meets the cold start's tolerance, and the velocities
+    stay as close to a solve at tolerance 1e-9 as the cold start's (measured: 0.014 against
+    0.006 m/s at worst, at a top speed of 1.3 m/s)."""
+    runs = falling_sheet_runs({"warm": {}, "cold": {"warm_start": False}, "tight": TIGHT})
     assert sum(runs["warm"][0]) < 0.85 * sum(runs["cold"][0])
     warm_error, cold_error = (np.abs(runs[name][1] - runs["tight"][1]).max()
                               for name in ("warm", "cold"))
     assert warm_error < 3 * cold_error
+
+
+def test_gauss_seidel_takes_fewer_iterations_than_jacobi_for_the_same_accuracy():
+    """Symmetric Gauss–Seidel (Eisenstat's form) against block Jacobi at the same tolerance:
+    each meets it in its own preconditioner's norm, Gauss–Seidel in under 0.6 of the iterations
+    and with velocities no further from the tight solve than Jacobi's (measured: 333 against
+    724 iterations over the 12 steps, 0.009 against 0.014 m/s at worst)."""
+    runs = falling_sheet_runs({"gauss-seidel": {}, "jacobi": {"gauss_seidel": False},
+                               "tight": TIGHT})
+    assert sum(runs["gauss-seidel"][0]) < 0.6 * sum(runs["jacobi"][0])
+    errors = {name: np.abs(runs[name][1] - runs["tight"][1]).max()
+              for name in ("gauss-seidel", "jacobi")}
+    assert errors["gauss-seidel"] <= errors["jacobi"], errors
 
 
 @pytest.mark.parametrize("scene_name, overrides", [

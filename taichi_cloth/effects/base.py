@@ -20,7 +20,9 @@ Genesis' ``force_fields.py``). What an effect declares:
   (∂f_i/∂x_i, ∂f_i/∂v_i) for the implicit solver, or ``has_jacobian = False`` when it has none
   (a constant force). An effect that couples particles (bending) sets ``has_coupled_jacobian``
   and gives ``coupled_products(model, u, i_p)`` (the rows i of (∂f/∂x)·u and (∂f/∂v)·u),
-  ``coupled_diagonal(model, i_p)`` (their diagonals, for the preconditioner), and for
+  ``coupled_diagonal(model, i_p)`` (their diagonals, for the preconditioner),
+  ``coupled_side_products(model, u, i_p, lower)`` (the same rows over the off-diagonal entries
+  j < i when ``lower``, else j > i, for the Gauss–Seidel sweeps), and for
   ``dt = "auto"`` ``rest_stiffness_product(u)`` and ``stiffness_row_sums(n)`` (host NumPy).
 - ``uniform_acceleration``: (a_x, a_y, a_z) [m/s²] when its force is m·a for every free particle
   (gravity), which lets a grid cloth step in SIMD lanes; None otherwise.

@@ -147,6 +147,17 @@ class Bending(Effect):
         return stiffness, self.dashpot_time * stiffness
 
     @ti.func
+    def coupled_side_products(self, model, u, i_p, lower: ti.template()):
+        """``coupled_products`` over the row's entries j < i (``lower``) or j > i only: −Σ H_ij·u_j
+        and β times it (the diagonal left out)."""
+        total = ti.Vector.zero(self.model.real, 3)
+        for k in range(self.row_start[i_p], self.row_start[i_p + 1]):
+            j_p = self.row_neighbor[k]
+            if (j_p < i_p) == lower:
+                total += self.row_coefficient[k] * u[j_p]
+        return -total, -self.dashpot_time * total
+
+    @ti.func
     def coupled_diagonal(self, model, i_p):
         """The diagonal (scalar, times I) of ∂f_i/∂x_i and ∂f_i/∂v_i: −H_ii and −β·H_ii."""
         stiffness = -self.diagonal[i_p]

@@ -1,22 +1,27 @@
 """Preconditioned conjugate gradients on the implicit step's system A·δ = rhs, matrix-free,
 over the blocks of A that ``BackwardEuler._blocks`` stores (``implicit.py`` has the system).
 
-A block-Jacobi preconditioner P holds A's 3×3 diagonal blocks (each particle's own block): the
-springs of a sheet all lie in its plane, so a particle's block is stiff in the plane and soft
-across it, a difference the scalar diagonal (in world axes, which the cloth's normal rarely
-follows) cannot undo; on the 64 × 28 cotton hula at h = 1/120 s the blocks take CG from 191 to
-84 iterations a step on average. Pinned particles are filtered out of the system as
-in Baraff & Witkin's modified CG (§5.3): the candidate holds them at their targets, and the
-filter S zeroes their residual, preconditioned residual and direction, so δ = 0 for them.
+Two preconditioners P, both from A's 3×3 blocks. Where the solve runs on one thread (``serial``,
+every CPU run) it is symmetric block Gauss–Seidel in Eisenstat's form (``gauss_seidel.py``: its
+sweeps visit the rows in order, so they need the one thread); elsewhere (and for comparison) it
+is block Jacobi, A's diagonal blocks (each particle's own block), which the Gauss–Seidel sweeps
+also invert. The blocks matter: the springs of a sheet all lie in its plane, so a particle's
+block is stiff in the plane and soft across it, a difference the scalar diagonal (in world
+axes, which the cloth's normal rarely follows) cannot undo; on the 64 × 28 cotton hula at h =
+1/120 s the blocks took CG from 191 to 84 iterations a step on average, and Gauss–Seidel halves
+Jacobi's count again. Pinned particles are filtered out of the system as in Baraff & Witkin's
+modified CG (§5.3): the candidate holds them at their targets, and the filter S zeroes their
+residual, preconditioned residual and direction, so δ = 0 for them.
 
-Each CG iteration is three passes over fixed blocks of ``DOT_BLOCK`` particles: the direction
-p = z + β·p; A·p with the block's part of p·A·p; δ += α·p, r −= α·A·p and z = P⁻¹·r with the
-block's part of r·z. Dot products sum each block in order, then the blocks in order, so a solve
-is bit-reproducible whatever the thread count (no racing atomic float adds). Small cloth
-(``self.serial``) runs the whole solve, convergence test included, in one kernel launch on one
-thread; larger cloth launches one kernel per iteration, each pass a parallel loop over the
-blocks. Both run the same block functions and take the same steps. Scratch fields are allocated
-once; only ``_start_candidate`` (and the copy out) is compiled once per state.
+With block Jacobi each CG iteration is three passes over fixed blocks of ``DOT_BLOCK``
+particles: the direction p = z + β·p; A·p with the block's part of p·A·p; δ += α·p, r −= α·A·p
+and z = P⁻¹·r with the block's part of r·z. Dot products sum each block in order, then the
+blocks in order, so a solve is bit-reproducible whatever the thread count (no racing atomic
+float adds). Small cloth (``self.serial``) runs the whole solve, convergence test included, in
+one kernel launch on one thread; larger cloth launches one kernel per iteration, each pass a
+parallel loop over the blocks. With Jacobi both run the same block functions and take the same
+steps. Scratch fields are allocated once; only ``_start_candidate`` (and the copy out) is
+compiled once per state.
 """
 
 import math
@@ -46,7 +51,8 @@ def finite(value):
 class BlockConjugateGradient:
     """The solver half of ``BackwardEuler``: its scratch fields (``_allocate_solver``), the solve
     (``_solve``) and the product with A (``_operator``). The integrator fills ``rhs``,
-    ``delta_v`` (the start), ``inverse_block`` (P⁻¹), ``spring_block``, ``local_block`` and
+    ``delta_v`` (the start), ``block`` and ``inverse_block`` (A_ii and its inverse, the Jacobi
+    P⁻¹), ``spring_block``, ``local_block`` and
     ``coupled_step`` (the coupled effects' products are taken at it)."""
 
     def _allocate_solver(self, particle_count: int, gather_count: int, real,
@@ -57,7 +63,9 @@ class BlockConjugateGradient:
         self.preconditioned = ti.Vector.field(3, real, n)
         self.direction = ti.Vector.field(3, real, n)
         self.product = ti.Vector.field(3, real, n)
-        self.inverse_block = ti.Matrix.field(3, 3, real, n)  # P⁻¹ [1/kg]
+        self.block = ti.Matrix.field(3, 3, real, n)  # A_ii [kg]
+        self.inverse_block = ti.Matrix.field(3, 3, real, n)  # A_ii⁻¹ [1/kg]
+        self.backward = ti.Vector.field(3, real, n)  # the Gauss–Seidel backward sweep's t
         self.spring_block = ti.Struct.field({"direction": ti.types.vector(3, real),
                                              "axial": real, "isotropic": real},
                                             shape=gather_count)
@@ -116,7 +124,11 @@ class BlockConjugateGradient:
         r·z), the last two where it stopped. Stops when r·z ≤ tolerance²·r₀·P⁻¹r₀ (converged),
         after ``max_iterations`` (unconverged), or at a non-finite r·z or a p·A·p that is not
         positive (breakdown)."""
-        sums = self._start_passes(True)
+        sums = ti.Vector([0.0, 0.0], ti.f64)
+        if ti.static(self.gauss_seidel):
+            sums = self._gauss_seidel_start()
+        else:
+            sums = self._start_passes(True)
         cold_rz, rz = sums[0], sums[1]
         threshold = tolerance_sq * cold_rz
         outcome = -1  # running
@@ -133,7 +145,11 @@ class BlockConjugateGradient:
             elif iterations == max_iterations:
                 outcome = UNCONVERGED
             else:
-                result = self._iteration_passes(rz, beta)
+                result = ti.Vector([0.0, 0.0], ti.f64)
+                if ti.static(self.gauss_seidel):
+                    result = self._gauss_seidel_iteration(rz, beta)
+                else:
+                    result = self._iteration_passes(rz, beta)
                 curvature = result[0]
                 if not (finite(curvature) and curvature > 0):
                     outcome = BREAKDOWN

@@ -44,21 +44,26 @@ import taichi as ti
 
 from taichi_cloth.physics.integrators.base import Integrator
 from taichi_cloth.physics.integrators.conjugate_gradient import BlockConjugateGradient
+from taichi_cloth.physics.integrators.gauss_seidel import GaussSeidelSweeps
 from taichi_cloth.physics.model import State
 
 
 @ti.data_oriented
-class BackwardEuler(BlockConjugateGradient, Integrator):
+class BackwardEuler(GaussSeidelSweeps, BlockConjugateGradient, Integrator):
     name = "implicit"
     uses_jacobian = True
     substep_batch = 1
 
     def __init__(self, forces, control, post_step=None, tolerance: float = 1e-3,
-                 max_iterations: int = 500, newton_iterations: int = 1, warm_start: bool = True):
+                 max_iterations: int = 500, newton_iterations: int = 1, warm_start: bool = True,
+                 gauss_seidel: bool = True):
         """tolerance: relative preconditioned residual √(r·P⁻¹r / r₀·P⁻¹r₀) at which CG stops
         (r₀ the residual of the cold start δ = 0); warm_start: start each step's first solve from
-        the last step's velocity change (module docstring)."""
+        the last step's velocity change (module docstring); gauss_seidel: precondition by
+        symmetric block Gauss–Seidel where the solve runs on one thread (``serial``), else by
+        block Jacobi (``conjugate_gradient.py``)."""
         super().__init__(forces, control, post_step)
+        self.gauss_seidel = gauss_seidel and self.serial
         model = self.model
         n, real = model.particle_count, model.real
         self.tolerance = tolerance
@@ -171,7 +176,8 @@ class BackwardEuler(BlockConjugateGradient, Integrator):
     @ti.func
     def _blocks(self, i_p, h, time):
         """Particle i_p's part of A at the candidate (module docstring): n, a and b of each of
-        its gather entries, its own block L_i, and the inverse of A's diagonal block A_ii for the preconditioner."""
+        its gather entries, its own block L_i, and A's diagonal block A_ii and its inverse for the
+        preconditioners."""
         model = self.model
         x, v = ti.static(self.candidate.x, self.candidate.v)
         real = model.real
@@ -200,7 +206,8 @@ class BackwardEuler(BlockConjugateGradient, Integrator):
         for e in ti.static(range(len(coupled))):
             stiffness, damping = coupled[e].coupled_diagonal(model, i_p)
             own_block -= (h * damping + h * h * stiffness) * ti.Matrix.identity(real, 3)
-        self.inverse_block[i_p] = (diagonal_block + own_block).inverse()
+        self.block[i_p] = diagonal_block + own_block
+        self.inverse_block[i_p] = self.block[i_p].inverse()
 
     @ti.kernel
     def _accept(self, dt: ti.f64, last_newton: ti.i32):
