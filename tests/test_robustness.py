@@ -205,3 +205,18 @@ def test_arch_cuda_without_cuda_is_one_line_in_a_fresh_process(tmp_path):
     assert result.returncode == 2
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and "--arch cuda" in lines[0]
+
+
+def test_a_kernel_compile_error_still_names_its_file_line_and_function(tmp_path, monkeypatch):
+    """``runtime.short_position_info`` drops Taichi's source excerpt from compile errors, not
+    where the error is."""
+    import taichi as ti
+    source = tmp_path / "broken_kernel.py"
+    source.write_text("import taichi as ti\n\n\n@ti.kernel\ndef broken() -> ti.i32:\n"
+                      "    return undefined_name\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    import broken_kernel
+    with pytest.raises(ti.TaichiNameError) as error:
+        broken_kernel.broken()
+    assert f'File "{source}", line 6, in broken:' in str(error.value)
+    assert "undefined_name" in str(error.value)

@@ -239,8 +239,10 @@ class Simulation:
             center_of_mass=[float(c) for c in np.sum(mass[:, None] * x, 0) / np.sum(mass)],
             extra=extra)
 
-    def guarded_frame(self, frame: int, record: RunRecord, still: bool = False) -> FrameMetrics:
-        """Advance to ``frame`` and check it (``still``: a settling frame, ``physics.settling``). A bad
+    def guarded_frame(self, frame: int, record: RunRecord,
+                      still: bool = False) -> FrameMetrics | None:
+        """Advance to ``frame`` and check it; its metrics (``measure``), or None for a settling
+        frame (``still``: ``physics.settling``, which takes what it needs itself). A bad
         frame is rolled back and retried with the step halved (the smaller step is kept for the
         rest of the run), up to ``simulation.max_retries`` times; then ``UnstableError``.
         Nothing non-finite leaves. With self-collision declared or ``simulation.redo_strain``
@@ -252,7 +254,7 @@ class Simulation:
             problem, x, v, crossings, halvings = self._advance_refining(frame, record, still)
             if problem is None:
                 self._crossings = crossings
-                return self.measure(frame, x, v, crossings, halvings)
+                return None if still else self.measure(frame, x, v, crossings, halvings)
             if attempt == self.scene.simulation.max_retries:
                 break
             record.retries += 1
