@@ -8,7 +8,7 @@ PACKAGE = Path(__file__).resolve().parent.parent / "taichi_cloth"
 # each layer may import only from the layers before it (docs/architecture.md)
 LAYERS = (
     ("errors",),
-    ("settings", "runtime", "flags", "gather"),
+    ("settings", "runtime", "flags", "gather", "uploads"),
     ("effects",),
     ("config",),
     ("cloth", "body"),

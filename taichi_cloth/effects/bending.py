@@ -39,6 +39,7 @@ import taichi as ti
 
 from taichi_cloth.effects.base import Effect, EffectContext
 from taichi_cloth.settings import setting
+from taichi_cloth.uploads import upload
 
 
 @dataclass(frozen=True)
@@ -115,11 +116,11 @@ class Bending(Effect):
     def upload(self) -> None:
         """Fill the fields (after every allocation: one SNode tree, ``physics/control.py``)."""
         real = self.model.numpy_real
-        if len(self.host_row_neighbor):
-            self.row_neighbor.from_numpy(self.host_row_neighbor)
-            self.row_coefficient.from_numpy(self.host_row_coefficient.astype(real))
-        self.row_start.from_numpy(self.host_row_start)
-        self.diagonal.from_numpy(self.host_diagonal.astype(real))
+        rows = [(self.row_neighbor, self.host_row_neighbor),
+                (self.row_coefficient, self.host_row_coefficient.astype(real))] \
+            if len(self.host_row_neighbor) else []
+        upload([*rows, (self.row_start, self.host_row_start),
+                (self.diagonal, self.host_diagonal.astype(real))])
 
     @ti.func
     def _row_product(self, u, i_p):

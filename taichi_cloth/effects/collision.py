@@ -26,6 +26,7 @@ from taichi_cloth.effects.penalty import (capsule_penetration_depths, closest_on
                                           penalty_force)
 from taichi_cloth.gather import incidence_lists
 from taichi_cloth.settings import setting
+from taichi_cloth.uploads import upload
 
 MASK_BITS = 31  # capsules a particle's near-mask can hold (more: every sample tests them all)
 
@@ -125,16 +126,16 @@ class CapsuleContact(Effect):
     def upload(self) -> None:
         """The capsule radii (and the surface samples) into their fields (after every
         allocation: one SNode tree)."""
-        self.capsule_radius.from_numpy(self._host_radius)
+        pairs = [(self.capsule_radius, self._host_radius)]
         if self.surface:
             real = self.model.numpy_real
             corners, weights, sample_mass, start, item, item_weight = self._sample_tables
-            self.sample_corners.from_numpy(corners)
-            self.sample_weights.from_numpy(weights.astype(real))
-            self.sample_mass.from_numpy(sample_mass.astype(real))
-            self.particle_sample_start.from_numpy(start)
-            self.particle_sample.from_numpy(item)
-            self.particle_sample_weight.from_numpy(item_weight.astype(real))
+            pairs += [(self.sample_corners, corners),
+                      (self.sample_weights, weights.astype(real)),
+                      (self.sample_mass, sample_mass.astype(real)),
+                      (self.particle_sample_start, start), (self.particle_sample, item),
+                      (self.particle_sample_weight, item_weight.astype(real))]
+        upload(pairs)
 
     @ti.func
     def prepare(self, x, v, t):

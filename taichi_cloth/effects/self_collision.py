@@ -51,6 +51,7 @@ from taichi_cloth.gather import incidence_lists
 from taichi_cloth.effects.proximity import closest_between_segments, closest_on_triangle
 from taichi_cloth.effects.spatial_hash import SpatialHash
 from taichi_cloth.settings import setting
+from taichi_cloth.uploads import upload
 
 CANDIDATES = 32  # the longest candidate list of a particle, triangle or edge
 PADDING = 1.0  # the candidate lists' padding in thicknesses: rebuilt after half of it is moved
@@ -128,16 +129,15 @@ class SelfCollision(Effect):
 
     def upload(self) -> None:
         triangles, edges = self._host
-        self.corners.from_numpy(triangles.astype(np.int32))
-        self.ends.from_numpy(edges.astype(np.int32))
         self.built_at.fill(np.inf)  # no lists yet: the first evaluation builds them
-        self.items.kind.from_numpy(np.repeat(np.array([PARTICLE, TRIANGLE, EDGE], np.int32), (
-            self.model.particle_count, self.triangle_count, self.edge_count)))
+        kinds = np.repeat(np.array([PARTICLE, TRIANGLE, EDGE], np.int32), (
+            self.model.particle_count, self.triangle_count, self.edge_count))
         targets = (self.triangle_start, self.triangle_item, self.triangle_slot,
                    self.edge_start, self.edge_item, self.edge_slot)
-        for target, values in zip(targets, (v for lists in self._lists for v in lists)):
-            if len(values):
-                target.from_numpy(values.astype(np.int32))
+        upload([(self.corners, triangles.astype(np.int32)), (self.ends, edges.astype(np.int32)),
+                (self.items.kind, kinds),
+                *((target, values.astype(np.int32)) for target, values in
+                  zip(targets, (v for lists in self._lists for v in lists)) if len(values))])
 
     @ti.func
     def prepare(self, x, v, t):

@@ -15,6 +15,8 @@ Times outside the sampled span clamp to its ends.
 import numpy as np
 import taichi as ti
 
+from taichi_cloth.uploads import upload
+
 
 @ti.data_oriented
 class KinematicTrack:
@@ -29,17 +31,28 @@ class KinematicTrack:
         self.velocity = ti.Vector.field(3, real, (sample_count, point_count))
         self.timing = ti.field(ti.f64, 2)  # first sample time [s], interval between samples [s]
 
+    def pairs(self, first_time: float, interval: float, positions: np.ndarray,
+              velocities: np.ndarray) -> list:
+        """(field, array) pairs for ``uploads.upload``: positions, velocities (sample_count,
+        point_count, 3) at first_time + k·interval."""
+        return [(self.position, np.ascontiguousarray(positions, dtype=self.numpy_real)),
+                (self.velocity, np.ascontiguousarray(velocities, dtype=self.numpy_real)),
+                (self.timing, np.array([first_time, interval]))]
+
     def upload(self, first_time: float, interval: float, positions: np.ndarray,
                velocities: np.ndarray) -> None:
         """positions, velocities: (sample_count, point_count, 3) at first_time + k·interval."""
-        self.position.from_numpy(np.ascontiguousarray(positions, dtype=self.numpy_real))
-        self.velocity.from_numpy(np.ascontiguousarray(velocities, dtype=self.numpy_real))
-        self.timing.from_numpy(np.array([first_time, interval]))
+        upload(self.pairs(first_time, interval, positions, velocities))
+
+    def held(self, positions: np.ndarray) -> list:
+        """``pairs`` of points that stay where they are: every sample at ``positions`` (K,3), at
+        rest."""
+        repeated = np.repeat(positions[None], self.sample_count, axis=0)
+        return self.pairs(0.0, 1.0, repeated, np.zeros_like(repeated))
 
     def hold(self, positions: np.ndarray) -> None:
-        """Points that stay where they are: every sample at ``positions`` (K,3), at rest."""
-        repeated = np.repeat(positions[None], self.sample_count, axis=0)
-        self.upload(0.0, 1.0, repeated, np.zeros_like(repeated))
+        """Upload ``held(positions)``."""
+        upload(self.held(positions))
 
     @ti.func
     def at(self, i_k, t):
@@ -94,9 +107,9 @@ class Control:
         and a process may hold only ~500 trees, so fields are allocated together."""
         slot = np.full(len(self._rest_positions), -1, dtype=np.int32)
         slot[self.pinned_particles] = np.arange(len(self.pinned_particles), dtype=np.int32)
-        self.pin_slot.from_numpy(slot)
-        if len(self.pinned_particles):
-            self.pin_track.hold(self._rest_positions[self.pinned_particles])
+        held = self.pin_track.held(self._rest_positions[self.pinned_particles]) \
+            if len(self.pinned_particles) else []
+        upload([(self.pin_slot, slot), *held])
 
     @ti.func
     def pin_target(self, i_p, t):

@@ -22,6 +22,7 @@ import taichi as ti
 from taichi_cloth.cloth.garment import Garment
 from taichi_cloth.gather import gather_lists, triangle_gather_lists
 from taichi_cloth.physics.packed_grid import grid_stencil
+from taichi_cloth.uploads import upload
 
 FAMILY_ORDER = ("stretch", "shear", "bend")
 
@@ -94,18 +95,15 @@ class Model:
         # Every field is allocated before the first copy: a copy is a kernel launch, which
         # closes Taichi's current SNode tree, and a process may hold only ~500 trees.
 
-        self.particle_mass.from_numpy(self._real(garment.mass))
-        self.particle_inv_mass.from_numpy(self._real(inv_mass))
-        self.spring_ends.from_numpy(ends)
-        self.spring_rest_length.from_numpy(self._real(rest_length))
-        self.spring_stiffness.from_numpy(self._real(stiffness))
-        self.spring_damping.from_numpy(self._real(damping))
-        self.particle_spring_start.from_numpy(spring_start)
-        self.particle_spring.from_numpy(spring_item)
-        self.particle_neighbor.from_numpy(spring_other)
-        self.triangles.from_numpy(garment.triangles)
-        self.particle_triangle_start.from_numpy(triangle_start)
-        self.particle_triangle.from_numpy(triangle_item)
+        upload([(self.particle_mass, self._real(garment.mass)),
+                (self.particle_inv_mass, self._real(inv_mass)), (self.spring_ends, ends),
+                (self.spring_rest_length, self._real(rest_length)),
+                (self.spring_stiffness, self._real(stiffness)),
+                (self.spring_damping, self._real(damping)),
+                (self.particle_spring_start, spring_start), (self.particle_spring, spring_item),
+                (self.particle_neighbor, spring_other), (self.triangles, garment.triangles),
+                (self.particle_triangle_start, triangle_start),
+                (self.particle_triangle, triangle_item)])
         if self.grid is not None:
             self.grid.upload()
 
@@ -127,7 +125,6 @@ class Model:
     def states(self, count: int) -> list[State]:
         """``count`` fresh states, allocated together (one SNode tree) before they are filled."""
         states = [State(self.particle_count, self.real) for _ in range(count)]
-        for state in states:
-            state.x.from_numpy(self._real(self.garment.start_positions))
-            state.v.fill(0.0)
+        start, rest = self._real(self.garment.start_positions), np.zeros((self.particle_count, 3))
+        upload([pair for state in states for pair in ((state.x, start), (state.v, rest))])
         return states

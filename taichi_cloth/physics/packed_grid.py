@@ -16,6 +16,8 @@ otherwise springs are gathered through the CSR lists one particle at a time.
 import numpy as np
 import taichi as ti
 
+from taichi_cloth.uploads import upload
+
 PACKED_PARTICLE_MINIMUM = 1024  # below it the CSR gather is as fast and compiles in a blink
 SIMD_LANES = 16  # columns per packed group: one AVX-512 register of float32
 STENCIL_REACH = 2  # the farthest neighbour offset a stencil may have, rows or columns
@@ -56,10 +58,10 @@ class GridStencil:
 
     def upload(self) -> None:
         """Copy the tables into the fields (after the model has allocated all of its own)."""
-        self.slot_row_step.from_numpy(np.array([step for step, _ in self.slot_offsets], np.int32))
         numpy_real = np.float64 if self.rest_length.dtype == ti.f64 else np.float32
-        for table, values in zip((self.rest_length, self.stiffness, self.damping), self._tables):
-            table.from_numpy(np.ascontiguousarray(values, dtype=numpy_real))
+        upload([(self.slot_row_step, np.array([step for step, _ in self.slot_offsets], np.int32)),
+                *((table, np.ascontiguousarray(values, dtype=numpy_real)) for table, values in
+                  zip((self.rest_length, self.stiffness, self.damping), self._tables))])
 
     def packed_fields(self, real) -> list:
         """Three fields (x, y, z) of SIMD_LANES-vectors indexed [buffer, row, group], so a group
@@ -247,15 +249,15 @@ class PackedGrid:
 
     def _upload_constants(self) -> None:
         grid = self.grid
-        self.wrapping_group.from_numpy(np.array(self.wrapping_groups, np.int32))
         inv_mass = self.model.host_inv_mass.reshape(grid.rows, grid.columns)
         lanes = np.zeros((grid.rows, grid.group_count * SIMD_LANES), self.model.numpy_real)
         lanes[:, SIMD_LANES:SIMD_LANES + grid.columns] = inv_mass
-        self.packed_inv_mass.from_numpy(lanes.reshape(grid.rows, grid.group_count, SIMD_LANES))
         pinned = np.zeros(lanes.shape, dtype=bool)
         pinned[:, SIMD_LANES:SIMD_LANES + grid.columns] = inv_mass == 0
-        self.group_has_pin.from_numpy(
-            pinned.reshape(grid.rows, grid.group_count, SIMD_LANES).any(axis=2).astype(np.int32))
+        upload([(self.wrapping_group, np.array(self.wrapping_groups, np.int32)),
+                (self.packed_inv_mass, lanes.reshape(grid.rows, grid.group_count, SIMD_LANES)),
+                (self.group_has_pin, pinned.reshape(grid.rows, grid.group_count, SIMD_LANES)
+                 .any(axis=2).astype(np.int32))])
 
     @ti.func
     def pack(self, x, v, buffer, with_velocity: ti.template()):
