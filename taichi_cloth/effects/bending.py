@@ -111,6 +111,11 @@ class Bending(Effect):
         self.row_neighbor = ti.field(ti.i32, entries)
         self.row_coefficient = ti.field(real, entries)
         self.diagonal = ti.field(real, model.particle_count)
+        # each row's first entry j > i (the rows ascend): the Gauss–Seidel sweeps' halves
+        owner = np.repeat(np.arange(model.particle_count), np.diff(self.host_row_start))
+        self.host_row_split = (self.host_row_start[:-1] + np.bincount(
+            owner[self.host_row_neighbor < owner], minlength=model.particle_count)).astype(np.int32)
+        self.row_split = ti.field(ti.i32, model.particle_count)
         self.dashpot_time = model.dashpot_time or 0.0  # β [s]: c_e = β·B_e
 
     def upload(self) -> None:
@@ -120,6 +125,7 @@ class Bending(Effect):
                 (self.row_coefficient, self.host_row_coefficient.astype(real))] \
             if len(self.host_row_neighbor) else []
         upload([*rows, (self.row_start, self.host_row_start),
+                (self.row_split, self.host_row_split),
                 (self.diagonal, self.host_diagonal.astype(real))])
 
     @ti.func
@@ -152,10 +158,11 @@ class Bending(Effect):
         """``coupled_products`` over the row's entries j < i (``lower``) or j > i only: −Σ H_ij·u_j
         and β times it (the diagonal left out)."""
         total = ti.Vector.zero(self.model.real, 3)
-        for k in range(self.row_start[i_p], self.row_start[i_p + 1]):
-            j_p = self.row_neighbor[k]
-            if (j_p < i_p) == lower:
-                total += self.row_coefficient[k] * u[j_p]
+        first, last = self.row_start[i_p], self.row_split[i_p]
+        if ti.static(not lower):
+            first, last = self.row_split[i_p], self.row_start[i_p + 1]
+        for k in range(first, last):
+            total += self.row_coefficient[k] * u[self.row_neighbor[k]]
         return -total, -self.dashpot_time * total
 
     @ti.func

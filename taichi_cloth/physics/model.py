@@ -109,6 +109,7 @@ class Model:
 
         # NumPy copies for per-frame metrics and exports (never touched in the substep loop).
         self.host_spring_ends = ends
+        self.host_spring_start, self.host_neighbor = spring_start, spring_other
         self.host_rest_length = rest_length
         self.host_stiffness = stiffness
         self.host_mass = garment.mass

@@ -28,16 +28,40 @@ Pinned particles are outside the system: their rows are skipped and their entrie
 swept vector stay 0, so their blocks A_ij add nothing to their neighbours' rows.
 """
 
+import numpy as np
 import taichi as ti
 
 from taichi_cloth.physics.integrators.conjugate_gradient import finite
+from taichi_cloth.uploads import upload
+
+
+def side_lists(spring_start: np.ndarray, neighbor: np.ndarray):
+    """Each particle's gather entries, those to a lower neighbour (j < i) first: (entry (K,),
+    split (N,)), particle i's lower entries ``entry[start[i]:split[i]]`` and the others
+    ``entry[split[i]:start[i + 1]]``, each in gather order. The sweeps read a row's half without
+    walking the other; the force sums keep the gather order."""
+    count = len(spring_start) - 1
+    owner = np.repeat(np.arange(count), np.diff(spring_start))
+    upper = neighbor > owner
+    entry = np.argsort(2 * owner + upper, kind="stable").astype(np.int32)
+    split = spring_start[:-1] + np.bincount(owner[~upper], minlength=count)
+    return entry, split.astype(np.int32)
 
 
 @ti.data_oriented
 class GaussSeidelSweeps:
     """The sweeps and passes of the Gauss–Seidel solve, for ``BlockConjugateGradient`` (which
     holds the fields: ``block`` (A_ii), ``inverse_block``, ``spring_block``, ``backward`` (t) and
-    the base solver's vectors; ``product`` holds the forward sweep's W⁻¹·(p − D·t))."""
+    the base solver's vectors; ``product`` holds the forward sweep's W⁻¹·(p − D·t)), with the
+    springs' ``side_lists`` of its own (``_allocate_sweeps``)."""
+
+    def _allocate_sweeps(self) -> None:
+        """The springs' ``side_lists`` in fields (``side_entry``, ``side_split``)."""
+        model = self.model
+        entry, split = side_lists(model.host_spring_start, model.host_neighbor)
+        self.side_entry = ti.field(ti.i32, max(1, len(entry)))
+        self.side_split = ti.field(ti.i32, model.particle_count)
+        upload([(self.side_split, split), *([(self.side_entry, entry)] if len(entry) else [])])
 
     @ti.func
     def _side_product(self, u: ti.template(), i_p, lower: ti.template()):
@@ -45,13 +69,15 @@ class GaussSeidelSweeps:
         the springs' −(a·n·nᵀ + b·I) and the coupled effects' −h·D_ij − h²·K_ij."""
         model = self.model
         result = ti.Vector.zero(model.real, 3)
-        for k in range(model.particle_spring_start[i_p], model.particle_spring_start[i_p + 1]):
-            j_p = model.particle_neighbor[k]
-            if (j_p < i_p) == lower:
-                n = self.spring_block[k].direction
-                u_j = u[j_p]
-                result -= self.spring_block[k].axial * n.dot(u_j) * n \
-                    + self.spring_block[k].isotropic * u_j
+        first, last = model.particle_spring_start[i_p], self.side_split[i_p]
+        if ti.static(not lower):
+            first, last = self.side_split[i_p], model.particle_spring_start[i_p + 1]
+        for s in range(first, last):
+            k = self.side_entry[s]
+            n = self.spring_block[k].direction
+            u_j = u[model.particle_neighbor[k]]
+            result -= self.spring_block[k].axial * n.dot(u_j) * n \
+                + self.spring_block[k].isotropic * u_j
         coupled = self.forces.coupled_effects
         for e in ti.static(range(len(coupled))):
             h = self.coupled_step[None]

@@ -79,6 +79,8 @@ class BackwardEuler(GaussSeidelSweeps, BlockConjugateGradient, Integrator):
         self.older_change = ti.Vector.field(3, real, n)
         self.change_dts = (0.0, 0.0)
         self._allocate_solver(n, model.particle_neighbor.shape[0], real, self.has_local_blocks)
+        if self.gauss_seidel:
+            self._allocate_sweeps()
         self.step_iterations = []  # CG iterations of each step since the last ``take_iterations``
         self.unconverged_steps = 0
 
