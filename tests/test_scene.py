@@ -153,13 +153,14 @@ def test_cli_unstable_run_exits_3_without_writing_nan(tmp_path):
 def test_a_simulation_allocates_its_fields_in_few_snode_trees():
     """Taichi closes an SNode tree at every kernel launch (a field copy is one) and a process
     holds only about 500 (then it crashes): objects allocate all their fields before copying into
-    them, so a whole dancer simulation costs 3 trees (model, states, contact)."""
+    them, so a whole dancer simulation costs 4 trees (model, states, contact, and the implicit
+    integrator's, which fills its Gauss–Seidel lists at once; otherwise its first step closes it)."""
     import taichi as ti
     program = ti.lang.impl.get_runtime().prog
     scene = load_scene("hula", ("cloth.resolution=[8, 6]",))
     before = program.get_snode_tree_size()
     Simulation(scene)
-    assert program.get_snode_tree_size() - before <= 3
+    assert program.get_snode_tree_size() - before <= 4
 
 
 @pytest.mark.parametrize("position", ["[0.0, 0.8, 0.0]", "[0.0, 3.0, 0.0]"])
