@@ -35,3 +35,17 @@ def triangle_gather_lists(triangles: np.ndarray, particle_count: int):
     """CSR lists of the triangles around each particle: (start (N+1,), triangle (K,))."""
     start, triangle, _ = incidence_lists(triangles, particle_count)
     return start, triangle
+
+
+def side_lists(start: np.ndarray, neighbor: np.ndarray):
+    """A CSR list's entries of each row i, those to a lower neighbour (j < i) first: (entry (K,),
+    split (N,)), row i's lower entries ``entry[start[i]:split[i]]`` and the others
+    ``entry[split[i]:start[i + 1]]``, each in list order (rows whose neighbours ascend get the
+    identity). Gauss–Seidel sweeps read a row's half without walking the other, while sums over
+    whole rows keep the list order."""
+    count = len(start) - 1
+    owner = np.repeat(np.arange(count), np.diff(start))
+    upper = neighbor > owner
+    entry = np.argsort(2 * owner + upper, kind="stable").astype(np.int32)
+    split = start[:-1] + np.bincount(owner[~upper], minlength=count)
+    return entry, split.astype(np.int32)

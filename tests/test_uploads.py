@@ -1,4 +1,5 @@
-"""``uploads.upload`` fills fields exactly as ``from_numpy`` does, in one launch."""
+"""``uploads.upload`` fills fields exactly as ``from_numpy`` does, in one launch;
+``gather.side_lists`` splits CSR rows for the Gauss–Seidel sweeps."""
 
 import numpy as np
 import pytest
@@ -30,3 +31,18 @@ def test_a_batch_of_fields_holds_the_bits_from_numpy_gives():
 def test_an_array_of_the_wrong_shape_is_refused():
     with pytest.raises(ValueError, match=r"\(4,\) for a field of \(5,\)"):
         upload([(ti.field(ti.f32, 5), np.zeros(4))])
+
+
+def test_side_lists_split_each_row_at_its_diagonal_and_keep_the_list_order():
+    """``gather.side_lists`` on a small spring list: each particle's entries to lower
+    neighbours, then to higher ones, each half in gather order."""
+    from taichi_cloth.gather import gather_lists, side_lists
+    springs = np.array([[0, 2], [1, 2], [2, 3], [0, 1], [3, 1]])
+    start, _, neighbor = gather_lists(springs, 4)
+    entry, split = side_lists(start, neighbor)
+    for i in range(4):
+        lower = [int(neighbor[k]) for k in entry[start[i]:split[i]]]
+        upper = [int(neighbor[k]) for k in entry[split[i]:start[i + 1]]]
+        in_order = [int(j) for j in neighbor[start[i]:start[i + 1]]]
+        assert lower == [j for j in in_order if j < i]
+        assert upper == [j for j in in_order if j > i]

@@ -38,6 +38,7 @@ import numpy as np
 import taichi as ti
 
 from taichi_cloth.effects.base import Effect, EffectContext
+from taichi_cloth.gather import side_lists
 from taichi_cloth.settings import setting
 from taichi_cloth.uploads import upload
 
@@ -112,9 +113,7 @@ class Bending(Effect):
         self.row_coefficient = ti.field(real, entries)
         self.diagonal = ti.field(real, model.particle_count)
         # each row's first entry j > i (the rows ascend): the Gauss–Seidel sweeps' halves
-        owner = np.repeat(np.arange(model.particle_count), np.diff(self.host_row_start))
-        self.host_row_split = (self.host_row_start[:-1] + np.bincount(
-            owner[self.host_row_neighbor < owner], minlength=model.particle_count)).astype(np.int32)
+        _, self.host_row_split = side_lists(self.host_row_start, self.host_row_neighbor)
         self.row_split = ti.field(ti.i32, model.particle_count)
         self.dashpot_time = model.dashpot_time or 0.0  # β [s]: c_e = β·B_e
 

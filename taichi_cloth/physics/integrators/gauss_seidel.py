@@ -28,24 +28,11 @@ Pinned particles are outside the system: their rows are skipped and their entrie
 swept vector stay 0, so their blocks A_ij add nothing to their neighbours' rows.
 """
 
-import numpy as np
 import taichi as ti
 
+from taichi_cloth.gather import side_lists
 from taichi_cloth.physics.integrators.conjugate_gradient import finite
 from taichi_cloth.uploads import upload
-
-
-def side_lists(spring_start: np.ndarray, neighbor: np.ndarray):
-    """Each particle's gather entries, those to a lower neighbour (j < i) first: (entry (K,),
-    split (N,)), particle i's lower entries ``entry[start[i]:split[i]]`` and the others
-    ``entry[split[i]:start[i + 1]]``, each in gather order. The sweeps read a row's half without
-    walking the other; the force sums keep the gather order."""
-    count = len(spring_start) - 1
-    owner = np.repeat(np.arange(count), np.diff(spring_start))
-    upper = neighbor > owner
-    entry = np.argsort(2 * owner + upper, kind="stable").astype(np.int32)
-    split = spring_start[:-1] + np.bincount(owner[~upper], minlength=count)
-    return entry, split.astype(np.int32)
 
 
 @ti.data_oriented
