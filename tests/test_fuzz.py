@@ -116,7 +116,7 @@ ARRAYS = st.one_of(st.floats(allow_nan=True, allow_infinity=True),
 @given(next_frame=st.integers(-10, 10 ** 9), dt=st.floats(allow_nan=True, allow_infinity=True),
        substeps=st.integers(-5, 10 ** 6), retries=st.integers(-5, 100),
        scale=st.floats(allow_nan=True, allow_infinity=True), count=st.integers(0, 20),
-       memory=st.dictionaries(st.sampled_from(["last_change", "older_change"]), ARRAYS))
+       memory=st.dictionaries(st.sampled_from(["last_change", "last_dt"]), ARRAYS))
 def test_a_checkpoint_loads_as_written_or_is_refused(sheet_scene, tmp_path_factory, next_frame, dt,
                                                      substeps, retries, scale, count, memory):
     folder = tmp_path_factory.mktemp("checkpoint")

@@ -31,8 +31,8 @@ from the effect at the stored step ``coupled_step``).
 
 The system is solved by preconditioned conjugate gradients (``conjugate_gradient.py``).
 
-Warm start: the first Newton iteration of a step starts CG from δ₀ extrapolated from the last two
-steps' velocity changes (``_start_weights``), scaled by the s that minimises the starting
+Warm start: the first Newton iteration of a step starts CG from δ₀ = Δv₁·h/h₁, the last step's
+velocity change per its step h₁ times this one's (``_start_weight``), scaled by the s that minimises the starting
 r·P⁻¹r (``_guess_scale``: never further from the stopping test than δ = 0). The stopping test
 stays relative to the cold start's r₀·P⁻¹r₀ = (S·rhs)·P⁻¹(S·rhs), so a solve stops at the same
 residual as from 0 (a checkpoint keeps the history: ``memory``). docs/performance.md has what
@@ -74,10 +74,9 @@ class BackwardEuler(GaussSeidelSweeps, BlockConjugateGradient, Integrator):
         self.start = State(n, real)  # the step's (x₀, v₀)
         self.candidate = State(n, real)
         self.delta_v = ti.Vector.field(3, real, n)
-        # v₁ − v₀ of the last two steps [m/s] and their steps [s] (0: no such step yet)
+        # v₁ − v₀ of the last step [m/s] and its step [s] (0: no step yet)
         self.last_change = ti.Vector.field(3, real, n)
-        self.older_change = ti.Vector.field(3, real, n)
-        self.change_dts = (0.0, 0.0)
+        self.last_dt = 0.0
         self._allocate_solver(n, model.particle_neighbor.shape[0], real, self.has_local_blocks)
         if self.gauss_seidel:
             self._allocate_sweeps()
@@ -85,17 +84,17 @@ class BackwardEuler(GaussSeidelSweeps, BlockConjugateGradient, Integrator):
         self.unconverged_steps = 0
 
     def memory(self) -> dict:
-        """The warm start's history (the last two steps' velocity changes and their steps) and
-        the count of unconverged steps so far."""
+        """The warm start's history (the last step's velocity change and its step) and the
+        count of unconverged steps so far."""
         return {"last_change": self.last_change.to_numpy(),
-                "older_change": self.older_change.to_numpy(),
-                "change_dts": np.array(self.change_dts, np.float64),
+                "last_dt": np.array(self.last_dt, np.float64),
                 "unconverged_steps": np.array(self.unconverged_steps)}
 
     def restore_memory(self, memory: dict) -> None:
+        """``memory``'s history back; a checkpoint written before the warm start took one step
+        has no ``last_dt``: its next step starts cold."""
         self.last_change.from_numpy(memory["last_change"])
-        self.older_change.from_numpy(memory["older_change"])
-        self.change_dts = tuple(float(dt) for dt in memory["change_dts"])
+        self.last_dt = float(memory.get("last_dt", 0.0))
         self.unconverged_steps = int(memory["unconverged_steps"])
 
     def take_iterations(self) -> list[int]:
@@ -116,26 +115,22 @@ class BackwardEuler(GaussSeidelSweeps, BlockConjugateGradient, Integrator):
         self._start_candidate(state_in, t, dt)
         iterations = 0
         for newton in range(self.newton_iterations):
-            self._prepare(t, dt, *(self._start_weights(dt) if newton == 0 else (0.0, 0.0)))
+            self._prepare(t, dt, self._start_weight(dt) if newton == 0 else 0.0)
             iterations += self._solve()
             self._accept(dt, newton == self.newton_iterations - 1)
-        self.change_dts = (dt, self.change_dts[0])
+        self.last_dt = dt
         self.step_iterations.append(iterations)
         state_out.copy_from(self.candidate)
         if self.has_post_step:
             self._post_step(state_out, t + dt)
 
-    def _start_weights(self, dt: float) -> tuple[float, float]:
-        """(w₁, w₂) of the warm start δ₀ = w₁·Δv₁ + w₂·Δv₂ from the last two steps' velocity
-        changes: the accelerations Δv/h, taken at the steps' midpoints, extrapolated linearly
-        to this step's midpoint, times h; Δv₁·h/h₁ after one step, 0 before (or cold)."""
-        last_dt, older_dt = self.change_dts
-        if not self.warm_start or last_dt == 0:
-            return 0.0, 0.0
-        if older_dt == 0:
-            return dt / last_dt, 0.0
-        slope = (last_dt + dt) / (last_dt + older_dt)
-        return dt * (1 + slope) / last_dt, -dt * slope / older_dt
+    def _start_weight(self, dt: float) -> float:
+        """w of the warm start δ₀ = w·Δv₁: the last step's acceleration Δv₁/h₁ times this step
+        h, 0 before the first step (or cold). Extrapolating linearly from the last two steps
+        instead took more CG iterations (docs/performance.md)."""
+        if not self.warm_start or self.last_dt == 0:
+            return 0.0
+        return dt / self.last_dt
 
     @ti.kernel
     def _start_candidate(self, state: ti.template(), t: ti.f64, dt: ti.f64):
@@ -152,15 +147,15 @@ class BackwardEuler(GaussSeidelSweeps, BlockConjugateGradient, Integrator):
                 self.candidate.x[i_p] = state.x[i_p] + h * state.v[i_p]
 
     @ti.kernel
-    def _prepare(self, t: ti.f64, dt: ti.f64, last_weight: ti.f64, older_weight: ti.f64):
+    def _prepare(self, t: ti.f64, dt: ti.f64, start_weight: ti.f64):
         """rhs = h·f(x_c, v_c, t + h) − M·(v_c − v₀), A's blocks at the candidate, and the
-        start δ₀ = w₁·Δv₁ + w₂·Δv₂ on the free particles (0 elsewhere; ``_start_weights``)."""
+        start δ₀ = w·Δv₁ on the free particles (0 elsewhere; ``_start_weight``)."""
         model = self.model
         forces = self.forces
         candidate = self.candidate
         h = ti.cast(dt, model.real)
         time = ti.cast(t + dt, model.real)  # backward Euler: forces at the step's end time
-        w_last, w_older = ti.cast(last_weight, model.real), ti.cast(older_weight, model.real)
+        w = ti.cast(start_weight, model.real)
         forces.prepare(candidate.x, candidate.v, t + dt)
         self.coupled_step[None] = h
         for i_p in candidate.x:
@@ -169,10 +164,8 @@ class BackwardEuler(GaussSeidelSweeps, BlockConjugateGradient, Integrator):
                 - model.particle_mass[i_p] * (candidate.v[i_p] - self.start.v[i_p])
             self._blocks(i_p, h, time)
             guess = ti.Vector.zero(model.real, 3)
-            if self._free(i_p) and last_weight != 0:
-                guess = w_last * self.last_change[i_p]
-                if older_weight != 0:
-                    guess += w_older * self.older_change[i_p]
+            if self._free(i_p) and start_weight != 0:
+                guess = w * self.last_change[i_p]
             self.delta_v[i_p] = guess
 
     @ti.func
@@ -214,7 +207,7 @@ class BackwardEuler(GaussSeidelSweeps, BlockConjugateGradient, Integrator):
     @ti.kernel
     def _accept(self, dt: ti.f64, last_newton: ti.i32):
         """v_c += δ, x_c = x₀ + h·v_c for the free particles; after the last Newton iteration the
-        step's change v_c − v₀ becomes Δv₁ of the warm start (and Δv₁ becomes Δv₂)."""
+        step's change v_c − v₀ becomes Δv₁ of the warm start."""
         model = self.model
         h = ti.cast(dt, model.real)
         for i_p in self.candidate.x:
@@ -222,7 +215,6 @@ class BackwardEuler(GaussSeidelSweeps, BlockConjugateGradient, Integrator):
                 self.candidate.v[i_p] += self.delta_v[i_p]
                 self.candidate.x[i_p] = self.start.x[i_p] + h * self.candidate.v[i_p]
                 if last_newton:
-                    self.older_change[i_p] = self.last_change[i_p]
                     self.last_change[i_p] = self.candidate.v[i_p] - self.start.v[i_p]
 
     @ti.kernel
