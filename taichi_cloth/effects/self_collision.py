@@ -129,12 +129,12 @@ class SelfCollision(Effect):
 
     def upload(self) -> None:
         triangles, edges = self._host
-        self.built_at.fill(np.inf)  # no lists yet: the first evaluation builds them
         kinds = np.repeat(np.array([PARTICLE, TRIANGLE, EDGE], np.int32), (
             self.model.particle_count, self.triangle_count, self.edge_count))
         targets = (self.triangle_start, self.triangle_item, self.triangle_slot,
                    self.edge_start, self.edge_item, self.edge_slot)
-        upload([(self.corners, triangles.astype(np.int32)), (self.ends, edges.astype(np.int32)),
+        upload([(self.built_at, np.full(self.built_at.shape + (3,), np.inf)),  # no lists yet
+                (self.corners, triangles.astype(np.int32)), (self.ends, edges.astype(np.int32)),
                 (self.items.kind, kinds),
                 *((target, values.astype(np.int32)) for target, values in
                   zip(targets, (v for lists in self._lists for v in lists)) if len(values))])

@@ -32,11 +32,11 @@ from the effect at the stored step ``coupled_step``).
 The system is solved by preconditioned conjugate gradients (``conjugate_gradient.py``).
 
 Warm start: the first Newton iteration of a step starts CG from δ₀ = Δv₁·h/h₁, the last step's
-velocity change per its step h₁ times this one's (``_start_weight``), scaled by the s that minimises the starting
-r·P⁻¹r (``_guess_scale``: never further from the stopping test than δ = 0). The stopping test
-stays relative to the cold start's r₀·P⁻¹r₀ = (S·rhs)·P⁻¹(S·rhs), so a solve stops at the same
-residual as from 0 (a checkpoint keeps the history: ``memory``). docs/performance.md has what
-the warm start saves.
+velocity change per its step h₁ times this one's (``_start_weight``), scaled by the s that
+minimises the starting r·P⁻¹r (``_guess_scale``: never further from the stopping test than
+δ = 0). The stopping test stays relative to the cold start's r₀·P⁻¹r₀ = (S·rhs)·P⁻¹(S·rhs), so
+a solve stops at the same residual as from 0 (a checkpoint keeps the history: ``memory``).
+docs/performance.md has what the warm start saves.
 """
 
 import numpy as np
