@@ -140,3 +140,133 @@ def test_pile_folds_onto_itself_on_the_floor_without_passing_through(tmp_path):
     assert last[:, 1].max() < 0.25  # it has come down from 1.03 m
     footprint = np.ptp(last[:, 2]) + np.ptp(last[:, 1])
     assert footprint < 0.6  # a metre of fabric in under 0.6 m: folded onto itself
+
+
+def closest_distance_point_triangle(p, a, b, c) -> float:
+    """Distance from p to triangle (a, b, c): to its plane where the projection falls inside,
+    else to the nearest of its sides (an oracle independent of the effect's Voronoi regions)."""
+    normal = np.cross(b - a, c - a)
+    normal /= np.linalg.norm(normal)
+    projected = p - ((p - a) @ normal) * normal
+    inside = all(np.cross(q1 - q0, projected - q0) @ normal >= 0
+                 for q0, q1 in ((a, b), (b, c), (c, a)))
+    if inside:
+        return abs((p - a) @ normal)
+    return min(closest_distance_point_segment(p, q0, q1) for q0, q1 in ((a, b), (b, c), (c, a)))
+
+
+def closest_distance_point_segment(p, a, b) -> float:
+    t = np.clip((p - a) @ (b - a) / ((b - a) @ (b - a)), 0.0, 1.0)
+    return float(np.linalg.norm(p - (a + t * (b - a))))
+
+
+def closest_distance_segments(a, b, c, d) -> float:
+    """Distance between segments ab and cd: the interior stationary point of |P(s) − Q(u)|²
+    when it lies in the unit square, else the smallest of the four end-to-segment distances."""
+    candidates = [closest_distance_point_segment(a, c, d), closest_distance_point_segment(b, c, d),
+                  closest_distance_point_segment(c, a, b), closest_distance_point_segment(d, a, b)]
+    d1, d2, r = b - a, d - c, a - c
+    matrix = np.array([[d1 @ d1, -(d1 @ d2)], [-(d1 @ d2), d2 @ d2]])
+    if abs(np.linalg.det(matrix)) > 1e-14:
+        s, u = np.linalg.solve(matrix, [-(d1 @ r), d2 @ r])
+        if 0 <= s <= 1 and 0 <= u <= 1:
+            candidates.append(float(np.linalg.norm(a + s * d1 - (c + u * d2))))
+    return min(candidates)
+
+
+@functools.cache
+def folded_sheet_physics():
+    """An 8 × 8 sheet (2 cm spacing) with self-collision at its defaults (thickness 4 mm, reach
+    8 mm), built once: (model, forces, state, output field, effect)."""
+    from taichi_cloth.cloth.garment import build_garment
+    from taichi_cloth.config.materials import PRESETS
+    from taichi_cloth.config.tables import ClothConfig
+    cloth = ClothConfig(shape="sheet", resolution=(8, 8), size=(0.14, 0.14), height=1.0,
+                        orientation="horizontal", pin="none")
+    model = Model(build_garment(cloth, PRESETS["cotton"]), "f64")
+    physics = assemble(model, [(SelfCollision, SelfCollisionSettings())])
+    effect = physics.effects[0]
+    return model, physics.forces, model.state(), ti.Vector.field(3, ti.f64, model.particle_count), \
+        effect
+
+
+def folded_positions(model) -> np.ndarray:
+    """The sheet folded in half across x (the right half turned back over the left, 6 mm above
+    it), every particle jittered by up to 2 mm: pairs at every distance around the reach."""
+    rest = model.garment.positions
+    x = rest.copy()
+    middle = 0.5 * (rest[:, 0].min() + rest[:, 0].max())
+    right = rest[:, 0] > middle + 1e-9
+    x[right, 0] = 2 * middle - rest[right, 0]
+    x[right, 1] += 0.006
+    return x + np.random.default_rng(7).uniform(-0.002, 0.002, x.shape)
+
+
+def listed_pairs(effect) -> set:
+    count = effect.pair_count[None]
+    kinds = effect.pair_kind.to_numpy()[:count]
+    particles = effect.pair_particles.to_numpy()[:count]
+    return {(int(kind), tuple(int(i) for i in ids)) for kind, ids in zip(kinds, particles)}
+
+
+def test_the_candidate_list_holds_exactly_the_pairs_within_the_reach():
+    """Against a brute-force NumPy search over every vertex and triangle it is not a corner of
+    and every two edges that share no particle, on the folded sheet."""
+    model, forces, state, out, effect = folded_sheet_physics()
+    x = folded_positions(model)
+    state.x.from_numpy(x)
+    state.v.fill(0.0)
+    effect.ask_rebuild()
+    forces.evaluate(state.x, state.v, 0.0, out)
+    reach = effect.reach
+    garment = model.garment
+    expected, borderline = set(), 0
+    for p in range(len(x)):
+        for corners in garment.triangles:
+            if p not in corners:
+                distance = closest_distance_point_triangle(x[p], *x[corners])
+                borderline += abs(distance - reach) < 1e-9
+                if distance <= reach:
+                    expected.add((0, (p, *(int(c) for c in corners))))
+    edges = garment.edges
+    for e in range(len(edges)):
+        for f in range(e + 1, len(edges)):
+            if not set(edges[e]) & set(edges[f]):
+                distance = closest_distance_segments(*x[edges[e]], *x[edges[f]])
+                borderline += abs(distance - reach) < 1e-9
+                if distance <= reach:
+                    expected.add((1, (*(int(i) for i in edges[e]), *(int(i) for i in edges[f]))))
+    assert borderline == 0
+    assert len(expected) > 100  # the fold brings the layers within reach all over
+    assert listed_pairs(effect) == expected
+    assert effect.overflow[None] == 0
+
+
+def test_a_rigid_motion_keeps_the_list_and_turns_the_forces_a_deformation_rebuilds_it():
+    """The list is rebuilt only when some particle is more than half the padding away from
+    where the best-fitting rigid motion carries it: not after a turn of 40° and a shift of half
+    a metre (the forces then turn with the cloth), not after one particle moves 0.4 of the
+    padding, but after 0.6 of it."""
+    model, forces, state, out, effect = folded_sheet_physics()
+    x = folded_positions(model)
+    state.v.fill(0.0)
+    effect.ask_rebuild()
+    state.x.from_numpy(x)
+    forces.evaluate(state.x, state.v, 0.0, out)
+    builds, force = effect.rebuilds[None], out.to_numpy()
+    assert np.abs(force).max() > 0  # the layers are within the thickness somewhere
+    angle = np.radians(40.0)
+    turn = np.array([[np.cos(angle), 0, np.sin(angle)], [0, 1, 0],
+                     [-np.sin(angle), 0, np.cos(angle)]])
+    turned = x @ turn.T + [0.5, -0.2, 0.1]
+    state.x.from_numpy(turned)
+    forces.evaluate(state.x, state.v, 0.0, out)
+    assert effect.rebuilds[None] == builds
+    np.testing.assert_allclose(out.to_numpy(), force @ turn.T, atol=1e-9 * np.abs(force).max())
+    pushed = turned.copy()
+    far = int(np.argmax(np.linalg.norm(x - x.mean(axis=0), axis=1)))
+    for fraction, rebuilt in ((0.4, False), (0.6, True)):
+        pushed[far] = turned[far] + [0, fraction * effect.padding, 0]
+        state.x.from_numpy(pushed)
+        forces.evaluate(state.x, state.v, 0.0, out)
+        assert effect.rebuilds[None] == builds + rebuilt

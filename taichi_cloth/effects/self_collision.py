@@ -18,21 +18,25 @@ on the relative slip u):
 The elastic part is −∇ of the energy ½·m·k̂·(thickness − d)² (the closest points move
 tangentially to first order), so momentum is conserved and the energy balance holds.
 
-Broad phase (``effects/spatial_hash.py``), in the kernel: particles, triangle centroids and edge
-midpoints hashed on a grid of cell = the longest current edge + the reach (thickness + padding),
-each kind in buckets of its own (a particle walks only centroids, a triangle particles, an edge
-midpoints); an item's candidate list holds the pairable items within the reach (bounding
-spheres, then the exact distance), ascending, at most ``CANDIDATES`` (more count as
-``self_collision_overflow``), rebuilt when a particle has moved half the padding since the last
-build: a pair not listed was beyond the reach and has closed by at most the padding.
+Candidate pairs: every pair within the reach (thickness + padding), in one compact list, rebuilt
+only when the cloth has deformed by half the padding since the last build. Deformed, not moved:
+distances between primitives do not change under a rigid motion, so the test takes the rigid
+motion that best carries the build's positions onto the current ones (Kabsch: the polar
+rotation of Σ x_i·(X_i − C)ᵀ, C their centroid) and compares each particle with where it would
+carry it; if none is more than half the padding off, no pair missing from the list has closed
+by more than the padding (a point of a triangle or segment is a convex combination of its
+corners, so it moved no more than they did). A skirt turning with the dancer keeps its list.
 
-Gathered, no atomics on forces: a pair's force is computed by each primitive it acts on, over the
-candidate lists: a particle sums its vertex–triangle forces, a triangle its corners' shares into
-a field per corner, an edge its ends' shares of edge–edge forces into a field per end, every edge
-pair evaluated in one order (lower edge first). ``force`` then gathers a particle's own sum and
-its triangles' and edges' shares through static incidence lists. The computations of one pair
-are the same function of the same numbers: they match to the bit, and a run is bit-reproducible
-on the CPU.
+The build (``effects/spatial_hash.py``, serial loops): the triangles' boxes grown by the reach on
+a grid of cells the size of a mean box, each particle walking the triangles filed in its own cell
+(the vertex–triangle pairs), and the edges' boxes grown by half the reach, each edge walking the
+edges filed in its cells (the edge–edge pairs, each found once); then the exact distance. Pairs
+are listed in particle order, then edge order, and every particle gets the list of its (pair,
+corner) entries, in pair order.
+
+Gathered, no atomics on forces: each pair's force (and blocks) is computed once per evaluation,
+with each of its four particles' share weight; a particle sums its entries' shares in list
+order, so a run is bit-reproducible on the CPU.
 
 Implicit integrator: per-particle blocks of each pair (w²-weighted), the couplings between a
 pair's particles left out; tunnelling, the thickness bound and the measured cost: docs/physics.md.
@@ -46,17 +50,17 @@ import taichi as ti
 from taichi_cloth.effects.base import Effect, EffectContext
 from taichi_cloth.effects.penalty import (normal_force_magnitude, penalty_damping_block,
                                           penalty_force)
-from taichi_cloth.errors import InputError
-from taichi_cloth.gather import incidence_lists
 from taichi_cloth.effects.proximity import closest_between_segments, closest_on_triangle
-from taichi_cloth.effects.spatial_hash import SpatialHash
+from taichi_cloth.effects.spatial_hash import BoxGrid
+from taichi_cloth.errors import InputError
+from taichi_cloth.runtime import runs_on_cpu
 from taichi_cloth.settings import setting
 from taichi_cloth.uploads import upload
 
-CANDIDATES = 32  # the longest candidate list of a particle, triangle or edge
-PADDING = 1.0  # the candidate lists' padding in thicknesses: rebuilt after half of it is moved
+PAIRS_PER_ITEM = 8  # the list's capacity per particle and edge (more count as overflow)
+PADDING = 1.0  # the list's padding in thicknesses: rebuilt after half of it is deformed
 CONTACTS_PER_PARTICLE = 4  # the stiffness bound for dt = "auto": a vertex, corner and edge shares
-PARTICLE, TRIANGLE, EDGE = 0, 1, 2  # hashed items' kinds: particle–triangle, edge–edge pairs
+VERTEX_TRIANGLE, EDGE_EDGE = 0, 1  # kinds of pairs
 
 
 @dataclass(frozen=True)
@@ -85,6 +89,7 @@ class SelfCollision(Effect):
         garment = model.garment
         self.model = model
         self.blocks = context.needs_jacobian  # the implicit solver's blocks, else none
+        self.serial = runs_on_cpu()  # the per-evaluation loops: one thread beats a hand-off
         real = model.real
         triangles, edges = garment.triangles, garment.edges
         rest = np.linalg.norm(np.diff(garment.positions[edges], axis=1), axis=2)
@@ -94,232 +99,228 @@ class SelfCollision(Effect):
                              f"below half the cloth's shortest edge, {shortest:g} m")
         self.thickness, self.stiffness = settings.thickness, settings.stiffness
         self.damping_ratio, self.friction = settings.damping, settings.friction
+        self.padding = PADDING * settings.thickness  # m: the list holds pairs within reach
+        self.reach = settings.thickness + self.padding  # m
+        particles = model.particle_count
         self.triangle_count, self.edge_count = len(triangles), len(edges)
-        # hashed items: the particles, then the triangles' centroids, then the edges' midpoints
-        self.item_count = model.particle_count + self.triangle_count + self.edge_count
-        self.items = SpatialHash(self.item_count, real)
-        self.item_radius = ti.field(real, self.item_count)  # m: what the item spans around it
+        self.triangle_boxes = BoxGrid(self.triangle_count, real)
+        self.edge_boxes = BoxGrid(self.edge_count, real)
         self.corners = ti.Vector.field(3, ti.i32, self.triangle_count)
         self.ends = ti.Vector.field(2, ti.i32, self.edge_count)
-        self.padding = PADDING * settings.thickness  # m: lists hold pairs within thickness + it
-        self.longest_edge = ti.field(real, ())  # m, at the last build: the hash cell's base
-        self.moved = ti.field(real, ())  # the farthest a particle went since the lists' build
-        self.stale = ti.field(ti.i32, ())  # whether this evaluation rebuilds the lists
-        self.overflow = ti.field(ti.i32, ())  # candidates dropped from full lists, ever
-        self.built_at = ti.Vector.field(3, real, model.particle_count)
-        self.candidates = ti.field(ti.i32, (self.item_count, CANDIDATES))  # items, ascending
-        self.candidate_count = ti.field(ti.i32, self.item_count)
-        self.vertex_force = ti.Vector.field(3, real, model.particle_count)
-        self.vertex_stiffness = ti.Matrix.field(3, 3, real, model.particle_count)
-        self.vertex_damping = ti.Matrix.field(3, 3, real, model.particle_count)
-        self.corner_force = ti.Vector.field(3, real, (self.triangle_count, 3))
-        self.corner_stiffness = ti.Matrix.field(3, 3, real, (self.triangle_count, 3))
-        self.corner_damping = ti.Matrix.field(3, 3, real, (self.triangle_count, 3))
-        self.end_force = ti.Vector.field(3, real, (self.edge_count, 2))
-        self.end_stiffness = ti.Matrix.field(3, 3, real, (self.edge_count, 2))
-        self.end_damping = ti.Matrix.field(3, 3, real, (self.edge_count, 2))
-        self._lists = (incidence_lists(triangles, model.particle_count),
-                       incidence_lists(edges, model.particle_count))
-        # per particle, CSR: its triangles with its corner there, its edges with its end there
-        self.triangle_start, self.triangle_item, self.triangle_slot, \
-            self.edge_start, self.edge_item, self.edge_slot = (
-                ti.field(ti.i32, len(values) if k == 0 else max(1, len(values)))
-                for start_item_slot in self._lists for k, values in enumerate(start_item_slot))
+        # the rebuild test: each particle's offset from the centroid at the last build
+        self.built_offset = ti.Vector.field(3, real, particles)
+        self.deformed = ti.field(real, ())  # m: the largest departure from the rigid motion
+        self.stale = ti.field(ti.i32, ())  # whether this evaluation rebuilds the list
+        self.rebuild_asked = ti.field(ti.i32, ())  # a rebuild at the next evaluation
+        self.rebuilds = ti.field(ti.i32, ())  # builds since the start
+        self.overflow = ti.field(ti.i32, ())  # candidate pairs dropped from a full list, ever
+        self.capacity = PAIRS_PER_ITEM * (particles + self.edge_count)
+        self.pair_count = ti.field(ti.i32, ())
+        self.pair_kind = ti.field(ti.i32, self.capacity)
+        self.pair_particles = ti.Vector.field(4, ti.i32, self.capacity)
+        # per evaluation: each pair's force on its first point, its blocks, its particles' shares
+        self.pair_force = ti.Vector.field(3, real, self.capacity)
+        self.pair_share = ti.Vector.field(4, real, self.capacity)
+        if self.blocks:
+            self.pair_stiffness = ti.Matrix.field(3, 3, real, self.capacity)
+            self.pair_damping = ti.Matrix.field(3, 3, real, self.capacity)
+        # per particle, CSR: its (pair, slot) entries as 4·pair + slot, in pair order
+        self.entry_start = ti.field(ti.i32, particles + 1)
+        self.entry_fill = ti.field(ti.i32, particles)
+        self.entry = ti.field(ti.i32, 4 * self.capacity)
         self._host = (triangles, edges)
 
     def upload(self) -> None:
         triangles, edges = self._host
-        kinds = np.repeat(np.array([PARTICLE, TRIANGLE, EDGE], np.int32), (
-            self.model.particle_count, self.triangle_count, self.edge_count))
-        targets = (self.triangle_start, self.triangle_item, self.triangle_slot,
-                   self.edge_start, self.edge_item, self.edge_slot)
-        upload([(self.built_at, np.full(self.built_at.shape + (3,), np.inf)),  # no lists yet
-                (self.corners, triangles.astype(np.int32)), (self.ends, edges.astype(np.int32)),
-                (self.items.kind, kinds),
-                *((target, values.astype(np.int32)) for target, values in
-                  zip(targets, (v for lists in self._lists for v in lists)) if len(values))])
+        upload([(self.corners, triangles.astype(np.int32)), (self.ends, edges.astype(np.int32))])
+        self.rebuild_asked[None] = 1
 
     @ti.func
     def prepare(self, x, v, t):
-        """The candidate lists, rebuilt when a particle has moved half the padding since the
-        last build, then every particle's, triangle corner's and edge end's share of the pair
-        forces and blocks over them (module docstring)."""
-        real = self.model.real
-        particles, triangles = self.model.particle_count, self.triangle_count
-        self.moved[None] = 0.0
-        for i_p in range(particles):
-            ti.atomic_max(self.moved[None], (x[i_p] - self.built_at[i_p]).norm())
-        self.stale[None] = int(self.moved[None] > 0.5 * real(self.padding))
-        self.longest_edge[None] = 0.0
-        for item in range(self.item_count):
+        """The candidate list, rebuilt when the cloth has deformed by half the padding since the
+        last build, then every pair's force and blocks over it (module docstring)."""
+        ti.loop_config(serialize=True)
+        for _ in range(1):  # serial: a reduction whose order decides the rebuild
+            self._measure_deformation(x)
+        ti.loop_config(serialize=True)
+        for _ in range(1):  # serial: appends in a fixed order
             if self.stale[None]:
-                self._place(x, item)
-        size = self.longest_edge[None] + real(self.thickness + self.padding)
-        self.items.build(size, self.stale)
-        for item in range(self.item_count):
-            if self.stale[None]:
-                self._list_near(x, item, size)
-        for item in range(particles + triangles):
-            self._vertex_triangle_pass(x, v, item)
-        for e in range(self.edge_count):
-            self._edge_pass(x, v, e)
+                self._build(x)
+        if ti.static(self.serial):
+            ti.loop_config(serialize=True)
+        for k in range(self.pair_count[None]):
+            self._evaluate(x, v, k)
 
     @ti.func
-    def _place(self, x, item):
-        """Hashed item ``item`` at x: its point (a particle, a triangle's centroid, an edge's
-        midpoint) and the radius around it that holds it; a particle's build position; the
-        longest edge into ``longest_edge``."""
-        particles, triangles = self.model.particle_count, self.triangle_count
-        if item < particles:
-            self.items.point[item] = x[item]
-            self.item_radius[item] = 0.0
-            self.built_at[item] = x[item]
-        elif item < particles + triangles:
-            corners = self.corners[item - particles]
-            centroid = (x[corners[0]] + x[corners[1]] + x[corners[2]]) / 3
-            self.items.point[item] = centroid
-            self.item_radius[item] = ti.max((x[corners[0]] - centroid).norm(), ti.max(
-                (x[corners[1]] - centroid).norm(), (x[corners[2]] - centroid).norm()))
-        else:
-            ends = self.ends[item - particles - triangles]
-            length = (x[ends[1]] - x[ends[0]]).norm()
-            self.items.point[item] = 0.5 * (x[ends[0]] + x[ends[1]])
-            self.item_radius[item] = 0.5 * length
-            ti.atomic_max(self.longest_edge[None], length)
-
-    @ti.func
-    def _pairable(self, item, other) -> ti.i32:
-        """Whether two hashed items form a pair the effect acts on: a particle and a triangle it
-        is not a corner of (either way round), or two edges that share no particle."""
-        particles, triangles = self.model.particle_count, self.triangle_count
-        pairable = 0
-        if item < particles and particles <= other < particles + triangles:
-            pairable = int((self.corners[other - particles] != item).all())
-        elif other < particles and particles <= item < particles + triangles:
-            pairable = int((self.corners[item - particles] != other).all())
-        elif item >= particles + triangles and other >= particles + triangles:
-            ends = self.ends[item - particles - triangles]
-            other_ends = self.ends[other - particles - triangles]
-            pairable = int(other_ends[0] != ends[0] and other_ends[0] != ends[1]
-                           and other_ends[1] != ends[0] and other_ends[1] != ends[1])
-        return pairable
-
-    @ti.func
-    def _list_near(self, x, item, size):
-        """Item ``item``'s candidates: the pairable items within thickness + padding of it
-        (their spheres first, then the exact distance), among those hashed in the 27 cells
-        around it (an item's sphere is within a cell of any point it spans: the cell is the
-        longest edge plus that reach)."""
-        reach = self.model.real(self.thickness + self.padding)
-        self.candidate_count[item] = 0
-        point, radius = self.items.point[item], self.item_radius[item]
-        base = self.items.cell_of(point, size)
-        wanted = ti.select(self.items.kind[item] == EDGE, EDGE, TRIANGLE - self.items.kind[item])
-        for offset in ti.grouped(ti.ndrange((-1, 2), (-1, 2), (-1, 2))):
-            cell = base + offset
-            bucket = self.items.bucket(cell, wanted)
-            for k in range(self.items.bucket_start[bucket], self.items.bucket_start[bucket + 1]):
-                other = self.items.filed[k]
-                if (self.items.cell[other] == cell).all() and self._pairable(item, other) \
-                        and (self.items.point[other] - point).norm() \
-                        <= radius + self.item_radius[other] + reach:
-                    if self._distance(x, item, other) <= reach:  # (``and`` evaluates both)
-                        self._append(item, other)
-
-    @ti.func
-    def _distance(self, x, item, other):
-        """The distance [m] between the primitives of two pairable items at x: a particle and
-        a triangle (either way round), or two edges."""
-        particles, triangles = self.model.particle_count, self.triangle_count
-        distance = self.model.real(0.0)
-        if item >= particles + triangles:
-            _, _, offset = self._edge_edge_offset(x, self.ends[item - particles - triangles],
-                                                  self.ends[other - particles - triangles])
-            distance = offset.norm()
-        else:
-            i_p, i_t = item, other - particles
-            if item >= particles:
-                i_p, i_t = other, item - particles
-            distance = self._vertex_triangle_offset(x, i_p, self.corners[i_t])[1].norm()
-        return distance
-
-    @ti.func
-    def _append(self, owner, other):
-        """Insert item ``other`` into ``owner``'s candidate list, kept in increasing order (so
-        sums over it do not depend on when it was built; counted as overflow when full)."""
-        count = self.candidate_count[owner]
-        if count < CANDIDATES:
-            slot = count
-            while slot > 0 and self.candidates[owner, slot - 1] > other:
-                self.candidates[owner, slot] = self.candidates[owner, slot - 1]
-                slot -= 1
-            self.candidates[owner, slot] = other
-            self.candidate_count[owner] = count + 1
-        else:
-            ti.atomic_add(self.overflow[None], 1)
-
-    @ti.func
-    def _vertex_triangle_pass(self, x, v, item):
-        """Vertex–triangle forces over hashed item ``item``'s candidates: a particle's own sum,
-        or a triangle's corners' shares −w_k·F (blocks w_k²·…; only with ``blocks``)."""
+    def _measure_deformation(self, x):
+        """``deformed``: the largest distance between a particle and where the rigid motion that
+        best fits the cloth since the build carries its build position (module docstring);
+        ``stale`` when it exceeds half the padding or a rebuild was asked."""
         real = self.model.real
         particles = self.model.particle_count
-        if item < particles:
-            self.vertex_force[item] = ti.Vector.zero(real, 3)
-            if ti.static(self.blocks):
-                self.vertex_stiffness[item] = ti.Matrix.zero(real, 3, 3)
-                self.vertex_damping[item] = ti.Matrix.zero(real, 3, 3)
-        else:
-            for c in ti.static(range(3)):
-                self.corner_force[item - particles, c] = ti.Vector.zero(real, 3)
-                if ti.static(self.blocks):
-                    self.corner_stiffness[item - particles, c] = ti.Matrix.zero(real, 3, 3)
-                    self.corner_damping[item - particles, c] = ti.Matrix.zero(real, 3, 3)
-        for k in range(self.candidate_count[item]):
-            other = self.candidates[item, k]
-            i_p, i_t = item, other - particles
-            if item >= particles:
-                i_p, i_t = other, item - particles
-            active, weights, pair_force, pair_stiffness, pair_damping = self._vertex_triangle(
-                x, v, i_p, self.corners[i_t])
-            if active and item < particles:
-                self.vertex_force[i_p] += pair_force
-                if ti.static(self.blocks):
-                    self.vertex_stiffness[i_p] += pair_stiffness
-                    self.vertex_damping[i_p] += pair_damping
-            elif active:
-                for c in ti.static(range(3)):
-                    self.corner_force[i_t, c] -= weights[c] * pair_force
-                    if ti.static(self.blocks):
-                        self.corner_stiffness[i_t, c] += weights[c] ** 2 * pair_stiffness
-                        self.corner_damping[i_t, c] += weights[c] ** 2 * pair_damping
+        centroid = ti.Vector.zero(real, 3)
+        covariance = ti.Matrix.zero(real, 3, 3)
+        for i in range(particles):
+            centroid += x[i]
+            covariance += x[i].outer_product(self.built_offset[i])
+        centroid /= particles
+        rotation, _ = ti.polar_decompose(covariance)
+        deformed = real(0.0)
+        for i in range(particles):
+            deformed = ti.max(deformed,
+                              (x[i] - centroid - rotation @ self.built_offset[i]).norm())
+        self.deformed[None] = deformed
+        self.stale[None] = int(self.rebuild_asked[None] != 0
+                               or not deformed <= real(0.5 * self.padding))
 
     @ti.func
-    def _edge_pass(self, x, v, e):
-        """Edge e's ends' shares of the edge–edge forces with its candidate edges (each pair
-        evaluated lower edge first)."""
+    def _build(self, x):
+        """The candidate pairs at x and each particle's entries (module docstring)."""
         real = self.model.real
-        for c in ti.static(range(2)):
-            self.end_force[e, c] = ti.Vector.zero(real, 3)
-            if ti.static(self.blocks):
-                self.end_stiffness[e, c] = ti.Matrix.zero(real, 3, 3)
-                self.end_damping[e, c] = ti.Matrix.zero(real, 3, 3)
-        first_edge = self.model.particle_count + self.triangle_count
-        for k in range(self.candidate_count[first_edge + e]):
-            other = self.candidates[first_edge + e, k] - first_edge
-            first, second = ti.min(e, other), ti.max(e, other)
-            active, s, u, pair_force, pair_stiffness, pair_damping = self._edge_edge(
-                x, v, self.ends[first], self.ends[second])
-            if active:
-                along, sign = s, real(1.0)
-                if e != first:
-                    along, sign = u, real(-1.0)
-                shares = ti.Vector([1 - along, along], real)
-                for c in ti.static(range(2)):
-                    self.end_force[e, c] += sign * shares[c] * pair_force
-                    if ti.static(self.blocks):
-                        self.end_stiffness[e, c] += shares[c] ** 2 * pair_stiffness
-                        self.end_damping[e, c] += shares[c] ** 2 * pair_damping
+        particles = self.model.particle_count
+        self.rebuild_asked[None] = 0
+        self.rebuilds[None] += 1
+        centroid = ti.Vector.zero(real, 3)
+        for i in range(particles):
+            centroid += x[i]
+        centroid /= particles
+        for i in range(particles):
+            self.built_offset[i] = x[i] - centroid
+        self.pair_count[None] = 0
+        reach = real(self.reach)
+        self.triangle_boxes.build(self._box_size(x, self.triangle_boxes, reach, 0))
+        self.edge_boxes.build(self._box_size(x, self.edge_boxes, 0.5 * reach, 1))
+        for i_p in range(particles):
+            self._list_vertex_triangle(x, i_p)
+        for e in range(self.edge_count):
+            self._list_edge_edge(x, e)
+        self._list_entries()
+
+    @ti.func
+    def _box_size(self, x, grid: ti.template(), grow, edges: ti.template()):
+        """Each triangle's (or, with ``edges``, each edge's) box at x grown by ``grow`` [m] into
+        ``grid``; returns their mean largest side [m], the grid's cell."""
+        real = self.model.real
+        total = real(0.0)
+        for i in range(grid.count):
+            low = ti.Vector.zero(real, 3)
+            high = ti.Vector.zero(real, 3)
+            if ti.static(edges):
+                a, b = x[self.ends[i][0]], x[self.ends[i][1]]
+                low, high = ti.min(a, b), ti.max(a, b)
+            else:
+                a, b, c = x[self.corners[i][0]], x[self.corners[i][1]], x[self.corners[i][2]]
+                low, high = ti.min(ti.min(a, b), c), ti.max(ti.max(a, b), c)
+            grid.lower[i] = low - grow
+            grid.upper[i] = high + grow
+            total += (grid.upper[i] - grid.lower[i]).max()
+        return total / ti.max(grid.count, 1)
+
+    @ti.func
+    def _append(self, kind, particles):
+        """A pair at the end of the list (counted as overflow when it is full)."""
+        k = self.pair_count[None]
+        if k < self.capacity:
+            self.pair_kind[k] = kind
+            self.pair_particles[k] = particles
+            self.pair_count[None] = k + 1
+        else:
+            self.overflow[None] += 1
+
+    @ti.func
+    def _list_vertex_triangle(self, x, i_p):
+        """Particle i_p's pairs: the triangles filed in its cell whose grown box holds it, that
+        it is not a corner of, within the reach."""
+        grid = self.triangle_boxes
+        if grid.filed[None]:
+            cell = grid.cell_of(x[i_p])
+            bucket = grid.bucket(cell)
+            for k in range(grid.bucket_start[bucket], grid.bucket_start[bucket + 1]):
+                t = grid.entry_box[k]
+                # nested tests: a kernel's ``and`` evaluates both sides
+                if (grid.entry_cell[k] == cell).all():
+                    if (grid.lower[t] <= x[i_p]).all() and (x[i_p] <= grid.upper[t]).all():
+                        corners = self.corners[t]
+                        if (corners != i_p).all():
+                            if self._vertex_triangle_offset(x, i_p, corners)[1].norm() \
+                                    <= self.model.real(self.reach):
+                                self._append(VERTEX_TRIANGLE, ti.Vector(
+                                    [i_p, corners[0], corners[1], corners[2]]))
+
+    @ti.func
+    def _list_edge_edge(self, x, e):
+        """Edge e's pairs with the edges of higher index whose grown boxes overlap its own (each
+        pair in the first cell both span), that share no particle with it, within the reach."""
+        grid = self.edge_boxes
+        if grid.filed[None]:
+            ends = self.ends[e]
+            low, high = grid.low_cell[e], grid.high_cell[e]
+            for cell in ti.grouped(ti.ndrange((low[0], high[0] + 1), (low[1], high[1] + 1),
+                                              (low[2], high[2] + 1))):
+                bucket = grid.bucket(cell)
+                first, end = grid.bucket_start[bucket], grid.bucket_start[bucket + 1]
+                for back in range(end - first):  # a bucket's boxes ascend: higher ones first
+                    k = end - 1 - back
+                    other = grid.entry_box[k]
+                    if other <= e:
+                        break
+                    # nested tests: a kernel's ``and`` evaluates both sides
+                    if (grid.entry_cell[k] == cell).all():
+                        if grid.overlap(e, other) \
+                                and (grid.first_common_cell(e, other) == cell).all():
+                            other_ends = self.ends[other]
+                            if other_ends[0] != ends[0] and other_ends[0] != ends[1] \
+                                    and other_ends[1] != ends[0] and other_ends[1] != ends[1]:
+                                if self._edge_edge_offset(x, ends, other_ends)[2].norm() \
+                                        <= self.model.real(self.reach):
+                                    self._append(EDGE_EDGE, ti.Vector(
+                                        [ends[0], ends[1], other_ends[0], other_ends[1]]))
+
+    @ti.func
+    def _list_entries(self):
+        """Every particle's (pair, slot) entries, in pair order: counted, prefix-summed, filled."""
+        particles = self.model.particle_count
+        for i in range(particles):
+            self.entry_fill[i] = 0
+        for k in range(self.pair_count[None]):
+            for slot in ti.static(range(4)):
+                self.entry_fill[self.pair_particles[k][slot]] += 1
+        self.entry_start[0] = 0
+        for i in range(particles):
+            self.entry_start[i + 1] = self.entry_start[i] + self.entry_fill[i]
+            self.entry_fill[i] = self.entry_start[i]
+        for k in range(self.pair_count[None]):
+            for slot in ti.static(range(4)):
+                i = self.pair_particles[k][slot]
+                self.entry[self.entry_fill[i]] = 4 * k + slot
+                self.entry_fill[i] += 1
+
+    @ti.func
+    def _evaluate(self, x, v, k):
+        """Pair k's force on its first point, its blocks and its particles' shares (the share
+        of a corner or end: its weight, negative on the second primitive)."""
+        real = self.model.real
+        ids = self.pair_particles[k]
+        active, force, stiffness, damping = 0, ti.Vector.zero(real, 3), \
+            ti.Matrix.zero(real, 3, 3), ti.Matrix.zero(real, 3, 3)
+        share = ti.Vector.zero(real, 4)
+        if self.pair_kind[k] == VERTEX_TRIANGLE:
+            corners = ti.Vector([ids[1], ids[2], ids[3]])
+            active, weights, force, stiffness, damping = self._vertex_triangle(x, v, ids[0],
+                                                                               corners)
+            share = ti.Vector([1.0, -weights[0], -weights[1], -weights[2]], real)
+        else:
+            active, s, u, force, stiffness, damping = self._edge_edge(
+                x, v, ti.Vector([ids[0], ids[1]]), ti.Vector([ids[2], ids[3]]))
+            share = ti.Vector([1 - s, s, u - 1, -u], real)
+        if not active:
+            share = ti.Vector.zero(real, 4)
+            force = ti.Vector.zero(real, 3)
+        self.pair_force[k] = force
+        self.pair_share[k] = share
+        if ti.static(self.blocks):
+            self.pair_stiffness[k] = stiffness
+            self.pair_damping[k] = damping
 
     @ti.func
     def _pair(self, mass, offset, relative_velocity):
@@ -387,33 +388,38 @@ class SelfCollision(Effect):
 
     @ti.func
     def force(self, model, x, v, i_p, t):
-        """The particle's own vertex–triangle forces, then its shares as a triangle corner and
-        as an edge end, gathered in list order."""
-        f = self.vertex_force[i_p]
-        for k in range(self.triangle_start[i_p], self.triangle_start[i_p + 1]):
-            f += self.corner_force[self.triangle_item[k], self.triangle_slot[k]]
-        for k in range(self.edge_start[i_p], self.edge_start[i_p + 1]):
-            f += self.end_force[self.edge_item[k], self.edge_slot[k]]
+        """The particle's shares of its pairs' forces, gathered in list order."""
+        f = ti.Vector.zero(model.real, 3)
+        for k in range(self.entry_start[i_p], self.entry_start[i_p + 1]):
+            pair, slot = self.entry[k] // 4, self.entry[k] % 4
+            f += self.pair_share[pair][slot] * self.pair_force[pair]
         return f
 
     @ti.func
     def local_jacobian(self, model, x, v, i_p, t, definite: ti.template()):
-        """(∂f/∂x, ∂f/∂v) of particle i_p: its slots' blocks from the last ``prepare`` (the
-        couplings between a pair's particles left out: module docstring)."""
-        stiffness = self.vertex_stiffness[i_p]
-        damping = self.vertex_damping[i_p]
-        for k in range(self.triangle_start[i_p], self.triangle_start[i_p + 1]):
-            stiffness += self.corner_stiffness[self.triangle_item[k], self.triangle_slot[k]]
-            damping += self.corner_damping[self.triangle_item[k], self.triangle_slot[k]]
-        for k in range(self.edge_start[i_p], self.edge_start[i_p + 1]):
-            stiffness += self.end_stiffness[self.edge_item[k], self.edge_slot[k]]
-            damping += self.end_damping[self.edge_item[k], self.edge_slot[k]]
+        """(∂f/∂x, ∂f/∂v) of particle i_p: its shares² of its pairs' blocks from the last
+        ``prepare`` (the couplings between a pair's particles left out: module docstring)."""
+        stiffness = ti.Matrix.zero(model.real, 3, 3)
+        damping = ti.Matrix.zero(model.real, 3, 3)
+        if ti.static(self.blocks):
+            for k in range(self.entry_start[i_p], self.entry_start[i_p + 1]):
+                pair, slot = self.entry[k] // 4, self.entry[k] % 4
+                weight = self.pair_share[pair][slot] ** 2
+                stiffness += weight * self.pair_stiffness[pair]
+                damping += weight * self.pair_damping[pair]
         return stiffness, damping
 
+    def ask_rebuild(self) -> None:
+        """Rebuild the candidate list at the next evaluation (``bench`` times the build)."""
+        self.rebuild_asked[None] = 1
+
     def frame_metrics(self, x: np.ndarray) -> dict:
-        """Candidate pairs dropped from full lists since the start (0 unless ``CANDIDATES`` is
-        too small for the scene: then contacts can be missed)."""
-        return {"self_collision_overflow": int(self.overflow[None])}
+        """Candidate pairs dropped from the full list since the start (0 unless
+        ``PAIRS_PER_ITEM`` is too small for the scene: then contacts can be missed), the list's
+        builds since the start and its pairs at the last build."""
+        return {"self_collision_overflow": int(self.overflow[None]),
+                "self_collision_builds": int(self.rebuilds[None]),
+                "self_collision_pairs": int(self.pair_count[None])}
 
     def stability_modes(self) -> list[tuple[float, float]]:
         """The penalty's mode, with up to ``CONTACTS_PER_PARTICLE`` contacts on one particle."""

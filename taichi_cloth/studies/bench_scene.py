@@ -58,9 +58,8 @@ class PassTimer:
     def _self_collision(self, state, t, rebuild: ti.template()):
         if ti.static(self.has_self_collision):
             effect = self.self_collision
-            if ti.static(rebuild):  # as if every particle had moved: the lists are stale
-                for i_p in range(self.model.particle_count):
-                    effect.built_at[i_p] = ti.Vector([1e30, 1e30, 1e30], self.model.real)
+            if ti.static(rebuild):  # the list built again, as after half the padding
+                effect.rebuild_asked[None] = 1
             effect.prepare(state.x, state.v, t)
             for i_p in range(self.model.particle_count):
                 self.out[i_p] = effect.force(self.model, state.x, state.v, i_p,
