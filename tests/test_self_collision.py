@@ -202,10 +202,10 @@ def folded_positions(model) -> np.ndarray:
     return x + np.random.default_rng(7).uniform(-0.002, 0.002, x.shape)
 
 
-def listed_pairs(effect) -> set:
-    count = effect.pair_count[None]
-    kinds = effect.pair_kind.to_numpy()[:count]
-    particles = effect.pair_particles.to_numpy()[:count]
+def listed_pairs(pairs) -> set:
+    count = pairs.pair_count[None]
+    kinds = pairs.pair_kind.to_numpy()[:count]
+    particles = pairs.pair_particles.to_numpy()[:count]
     return {(int(kind), tuple(int(i) for i in ids)) for kind, ids in zip(kinds, particles)}
 
 
@@ -216,7 +216,7 @@ def test_the_candidate_list_holds_exactly_the_pairs_within_the_reach():
     x = folded_positions(model)
     state.x.from_numpy(x)
     state.v.fill(0.0)
-    effect.ask_rebuild()
+    effect.pairs.ask_rebuild()
     forces.evaluate(state.x, state.v, 0.0, out)
     reach = effect.reach
     garment = model.garment
@@ -238,8 +238,8 @@ def test_the_candidate_list_holds_exactly_the_pairs_within_the_reach():
                     expected.add((1, (*(int(i) for i in edges[e]), *(int(i) for i in edges[f]))))
     assert borderline == 0
     assert len(expected) > 100  # the fold brings the layers within reach all over
-    assert listed_pairs(effect) == expected
-    assert effect.overflow[None] == 0
+    assert listed_pairs(effect.pairs) == expected
+    assert effect.pairs.overflow[None] == 0
 
 
 def test_a_rigid_motion_keeps_the_list_and_turns_the_forces_a_deformation_rebuilds_it():
@@ -250,10 +250,10 @@ def test_a_rigid_motion_keeps_the_list_and_turns_the_forces_a_deformation_rebuil
     model, forces, state, out, effect = folded_sheet_physics()
     x = folded_positions(model)
     state.v.fill(0.0)
-    effect.ask_rebuild()
+    effect.pairs.ask_rebuild()
     state.x.from_numpy(x)
     forces.evaluate(state.x, state.v, 0.0, out)
-    builds, force = effect.rebuilds[None], out.to_numpy()
+    builds, force = effect.pairs.rebuilds[None], out.to_numpy()
     assert np.abs(force).max() > 0  # the layers are within the thickness somewhere
     angle = np.radians(40.0)
     turn = np.array([[np.cos(angle), 0, np.sin(angle)], [0, 1, 0],
@@ -261,7 +261,7 @@ def test_a_rigid_motion_keeps_the_list_and_turns_the_forces_a_deformation_rebuil
     turned = x @ turn.T + [0.5, -0.2, 0.1]
     state.x.from_numpy(turned)
     forces.evaluate(state.x, state.v, 0.0, out)
-    assert effect.rebuilds[None] == builds
+    assert effect.pairs.rebuilds[None] == builds
     np.testing.assert_allclose(out.to_numpy(), force @ turn.T, atol=1e-9 * np.abs(force).max())
     pushed = turned.copy()
     far = int(np.argmax(np.linalg.norm(x - x.mean(axis=0), axis=1)))
@@ -269,4 +269,4 @@ def test_a_rigid_motion_keeps_the_list_and_turns_the_forces_a_deformation_rebuil
         pushed[far] = turned[far] + [0, fraction * effect.padding, 0]
         state.x.from_numpy(pushed)
         forces.evaluate(state.x, state.v, 0.0, out)
-        assert effect.rebuilds[None] == builds + rebuilt
+        assert effect.pairs.rebuilds[None] == builds + rebuilt

@@ -60,3 +60,21 @@ def closest_between_segments(a, b, c, d, real: ti.template()):
     elif aa > 1e-30:
         s = ti.min(ti.max(-d1.dot(r) / aa, 0.0), 1.0)
     return s, u
+
+
+@ti.func
+def vertex_triangle_offset(x, i_p, corners, real: ti.template()):
+    """(barycentric weights of the point of the triangle of particles ``corners`` closest to
+    particle i_p, the particle minus that point [m]), positions x."""
+    a, b, c = x[corners[0]], x[corners[1]], x[corners[2]]
+    weights = closest_on_triangle(x[i_p], a, b, c, real)
+    return weights, x[i_p] - (weights[0] * a + weights[1] * b + weights[2] * c)
+
+
+@ti.func
+def edge_edge_offset(x, first, second, real: ti.template()):
+    """(s, u, the first edge's closest point minus the second's [m]) of two edges given by
+    their particles, positions x."""
+    a, b, c, d = x[first[0]], x[first[1]], x[second[0]], x[second[1]]
+    s, u = closest_between_segments(a, b, c, d, real)
+    return s, u, (a + s * (b - a)) - (c + u * (d - c))

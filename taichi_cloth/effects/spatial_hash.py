@@ -24,17 +24,20 @@ BUCKETS_PER_BOX = 4  # hash buckets per box (rounded up to a power of two)
 MAX_DOUBLINGS = 40  # a cloth that needs more (non-finite or exploded positions) files nothing
 
 
+def power_of_two_at_least(count: int) -> int:
+    """The smallest power of two ≥ count (≥ 1): a bucket count for ``hash_cell``."""
+    return 1 << max(0, count - 1).bit_length()
+
+
 @ti.func
 def hash_cell(cell, bucket_count) -> ti.i32:
-    """The bucket in [0, bucket_count) of a grid cell (three integer indices): the spatial hash
-    of Teschner et al. (2003), a sum of the indices times three large primes, in 64-bit
-    integers."""
-    code = ti.cast(cell[0], ti.i64) * 73856093 + ti.cast(cell[1], ti.i64) * 19349663 \
-        + ti.cast(cell[2], ti.i64) * 83492791
-    bucket = code % bucket_count
-    if bucket < 0:
-        bucket += bucket_count
-    return ti.cast(bucket, ti.i32)
+    """The bucket in [0, bucket_count) of a grid cell (three integer indices; bucket_count a
+    power of two): the spatial hash of Teschner et al. (2003), the indices times three large
+    primes combined by exclusive or, in 32-bit integers (wrapping), masked (a 64-bit modulo
+    took a third of the self-intersection count)."""
+    c = ti.cast(cell, ti.i32)
+    code = (c[0] * 73856093) ^ (c[1] * 19349663) ^ (c[2] * 83492791)
+    return code & (bucket_count - 1)
 
 
 @ti.data_oriented
@@ -46,7 +49,7 @@ class BoxGrid:
         self.count = count
         self.real = real
         self.capacity = max(1, ENTRIES_PER_BOX * count)
-        self.bucket_count = 1 << max(0, BUCKETS_PER_BOX * count - 1).bit_length()
+        self.bucket_count = power_of_two_at_least(BUCKETS_PER_BOX * count)
         self.lower = ti.Vector.field(3, real, count)
         self.upper = ti.Vector.field(3, real, count)
         self.cell_size = ti.field(real, ())  # m, of the last build
@@ -65,10 +68,7 @@ class BoxGrid:
 
     @ti.func
     def bucket(self, cell) -> ti.i32:
-        """The bucket of a cell: Teschner et al.'s primes, combined by exclusive or in 32-bit
-        integers (wrapping) and masked to the power-of-two bucket count."""
-        code = (cell[0] * 73856093) ^ (cell[1] * 19349663) ^ (cell[2] * 83492791)
-        return code & (self.bucket_count - 1)
+        return hash_cell(cell, self.bucket_count)
 
     @ti.func
     def first_common_cell(self, i, j):
@@ -78,7 +78,8 @@ class BoxGrid:
     @ti.func
     def overlap(self, i, j) -> ti.i32:
         """Whether boxes i and j overlap."""
-        return int((self.lower[i] <= self.upper[j]).all() and (self.lower[j] <= self.upper[i]).all())
+        return int((self.lower[i] <= self.upper[j]).all()
+                   and (self.lower[j] <= self.upper[i]).all())
 
     @ti.func
     def _entries(self, cell_size):

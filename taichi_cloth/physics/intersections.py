@@ -8,20 +8,23 @@ intersection), then the two intervals in which the planes' line meets the triang
 intersect if and only if those overlap; coplanar pairs are tested in 2D (an edge of one crossing
 an edge of the other, or a vertex of one inside the other). Touching counts as intersecting.
 
-Broad phase: a uniform grid whose cell is the largest side of any triangle's bounding box, so each
-box spans at most two cells per axis. A triangle is filed under the cell of its box's lower
-corner (a hashed table, counted, prefix-summed and filled in one Taichi kernel); a triangle whose
-box overlaps another's is filed in the same or a neighbouring cell, so each triangle meets those
-filed in its own cell (higher indices) and in the 13 neighbours that follow its cell in
-lexicographic order: every pair of cells once. The count is an integer sum, the same in any order.
+Broad phase: a uniform grid whose cell is the mean side of the triangles' bounding boxes (doubled
+while the boxes would take more than ``FILINGS_PER_TRIANGLE`` cells each on average). Each box is
+filed under every cell it overlaps (a hashed table, counted, prefix-summed and filled in one
+Taichi kernel), each triangle walks the triangles of higher index filed in its cells, and a pair
+whose boxes overlap is tested in the first cell both span, so once. (Cells of the largest box
+side, each triangle filed once and meeting the 13 cells that follow its own, walked ~40 times as
+many pairs where the mesh is fine.) The count is an integer sum, the same in any order.
 """
 
 import numpy as np
 import taichi as ti
 
-from taichi_cloth.effects.spatial_hash import hash_cell
+from taichi_cloth.effects.spatial_hash import hash_cell, power_of_two_at_least
 
-HASH_LOAD = 2  # hash buckets per triangle
+HASH_LOAD = 2  # hash buckets per filing (rounded up to a power of two)
+FILINGS_PER_TRIANGLE = 8  # a triangle's box filed under this many cells at most, on average
+MAX_DOUBLINGS = 40  # of the cell, until the filings fit (more: non-finite positions)
 PLANE_TOLERANCE = 1e-12  # m: a vertex this close to the other triangle's plane lies on it
 FOUND_CAPACITY = 1024  # intersecting pairs a count also lists
 
@@ -150,22 +153,31 @@ cell3 = ti.types.vector(3, ti.i64)
 pair2 = ti.types.vector(2, ti.i32)
 
 
+@ti.func
+def cells_spanned(low, high, cell_size):
+    """The first and last grid cells (per axis) of the box [low, high] on cells of
+    ``cell_size`` [m]."""
+    return ti.cast(ti.floor(low / cell_size), ti.i64), ti.cast(ti.floor(high / cell_size), ti.i64)
+
+
 @ti.kernel
 def count_intersecting_pairs(x: ti.types.ndarray(dtype=vec3, ndim=1),
                              triangles: ti.types.ndarray(dtype=ivec3, ndim=1),
                              low: ti.types.ndarray(dtype=vec3, ndim=1),
                              high: ti.types.ndarray(dtype=vec3, ndim=1),
-                             cell: ti.types.ndarray(dtype=cell3, ndim=1),
                              bucket_start: ti.types.ndarray(dtype=ti.i32, ndim=1),
                              bucket_fill: ti.types.ndarray(dtype=ti.i32, ndim=1),
                              filed: ti.types.ndarray(dtype=ti.i32, ndim=1),
+                             filed_cell: ti.types.ndarray(dtype=cell3, ndim=1),
                              found: ti.types.ndarray(dtype=pair2, ndim=1),
                              cell_size: ti.types.ndarray(dtype=ti.f64, ndim=1),
                              pairs: ti.types.ndarray(dtype=ti.i32, ndim=1)):
     """The broad phase and Möller's test (module docstring): ``pairs[0]`` = the number of
     intersecting non-adjacent pairs, the first ``found.shape[0]`` of them in ``found``. The other
-    arrays are scratch: per triangle (T) its box, cell and filing slot, per bucket (B, B + 1)."""
+    arrays are scratch: per triangle (T) its box, per bucket (B, B + 1), per filing (F) its
+    triangle and cell."""
     bucket_count = bucket_fill.shape[0]
+    capacity = filed.shape[0]
     cell_size[0] = 0.0
     pairs[0] = 0
     bucket_start[0] = 0
@@ -176,38 +188,59 @@ def count_intersecting_pairs(x: ti.types.ndarray(dtype=vec3, ndim=1),
         p0, p1, p2 = x[corner[0]], x[corner[1]], x[corner[2]]
         low[t] = ti.min(ti.min(p0, p1), p2)
         high[t] = ti.max(ti.max(p0, p1), p2)
-        ti.atomic_max(cell_size[0], (high[t] - low[t]).max())
+        ti.atomic_add(cell_size[0], (high[t] - low[t]).max())
+    ti.loop_config(serialize=True)
+    for _ in range(1):  # cells of the mean box side, doubled until the filings fit
+        size = ti.max(cell_size[0] / triangles.shape[0], 1e-9)
+        for _doubling in range(MAX_DOUBLINGS):
+            filings = 0.0
+            for t in range(triangles.shape[0]):
+                span = ti.floor(high[t] / size) - ti.floor(low[t] / size) + 1
+                filings += span[0] * span[1] * span[2]
+            if filings <= capacity:
+                break
+            size *= 2
+        cell_size[0] = size
     for t in range(triangles.shape[0]):
-        cell[t] = ti.cast(ti.floor(low[t] / ti.max(cell_size[0], 1e-12)), ti.i64)
-        ti.atomic_add(bucket_fill[hash_cell(cell[t], bucket_count)], 1)
+        first, last = cells_spanned(low[t], high[t], cell_size[0])
+        for cell in ti.grouped(ti.ndrange((first[0], last[0] + 1), (first[1], last[1] + 1),
+                                          (first[2], last[2] + 1))):
+            ti.atomic_add(bucket_fill[hash_cell(cell, bucket_count)], 1)
     ti.loop_config(serialize=True)
     for b in range(bucket_count):
         bucket_start[b + 1] = bucket_start[b] + bucket_fill[b]
         bucket_fill[b] = bucket_start[b]
     for t in range(triangles.shape[0]):
-        filed[ti.atomic_add(bucket_fill[hash_cell(cell[t], bucket_count)], 1)] = t
+        first, last = cells_spanned(low[t], high[t], cell_size[0])
+        for cell in ti.grouped(ti.ndrange((first[0], last[0] + 1), (first[1], last[1] + 1),
+                                          (first[2], last[2] + 1))):
+            slot = ti.atomic_add(bucket_fill[hash_cell(cell, bucket_count)], 1)
+            filed[slot] = t
+            filed_cell[slot] = cell
     for a in range(triangles.shape[0]):
         corner_a = triangles[a]
-        for offset in ti.grouped(ti.ndrange((-1, 2), (-1, 2), (-1, 2))):
-            order = offset[0] * 9 + offset[1] * 3 + offset[2]  # each pair of cells once
-            if order < 0:
-                continue
-            near = cell[a] + ti.cast(offset, ti.i64)
-            bucket = hash_cell(near, bucket_count)
+        first, last = cells_spanned(low[a], high[a], cell_size[0])
+        for cell in ti.grouped(ti.ndrange((first[0], last[0] + 1), (first[1], last[1] + 1),
+                                          (first[2], last[2] + 1))):
+            bucket = hash_cell(cell, bucket_count)
             for k in range(bucket_start[bucket], bucket_start[bucket + 1]):
                 b = filed[k]
-                if (order > 0 or b > a) and (cell[b] == near).all() \
-                        and (low[a] <= high[b]).all() and (low[b] <= high[a]).all():
-                    corner_b = triangles[b]
-                    shared = 0
-                    for i, j in ti.static(ti.ndrange(3, 3)):
-                        shared |= int(corner_a[i] == corner_b[j])
-                    if shared == 0 and triangles_intersect(
-                            x[corner_a[0]], x[corner_a[1]], x[corner_a[2]],
-                            x[corner_b[0]], x[corner_b[1]], x[corner_b[2]]):
-                        slot = ti.atomic_add(pairs[0], 1)
-                        if slot < found.shape[0]:
-                            found[slot] = ti.Vector([ti.min(a, b), ti.max(a, b)])
+                # nested tests: a kernel's ``and`` evaluates both sides
+                if b > a and (filed_cell[k] == cell).all():
+                    if (low[a] <= high[b]).all() and (low[b] <= high[a]).all():
+                        other_first, _ = cells_spanned(low[b], high[b], cell_size[0])
+                        if (ti.max(first, other_first) == cell).all():  # the pair's first cell
+                            corner_b = triangles[b]
+                            shared = 0
+                            for i, j in ti.static(ti.ndrange(3, 3)):
+                                shared |= int(corner_a[i] == corner_b[j])
+                            if shared == 0:
+                                if triangles_intersect(
+                                        x[corner_a[0]], x[corner_a[1]], x[corner_a[2]],
+                                        x[corner_b[0]], x[corner_b[1]], x[corner_b[2]]):
+                                    slot = ti.atomic_add(pairs[0], 1)
+                                    if slot < found.shape[0]:
+                                        found[slot] = ti.Vector([a, b])
 
 
 class IntersectionCounter:
@@ -219,10 +252,11 @@ class IntersectionCounter:
         count = len(triangles)
         self.particle_count = particle_count
         self.triangles = np.ascontiguousarray(triangles, dtype=np.int32)
-        buckets = max(1, HASH_LOAD * count)
-        self.scratch = (np.zeros((count, 3)), np.zeros((count, 3)), np.zeros((count, 3), np.int64),
+        buckets = power_of_two_at_least(HASH_LOAD * count)
+        filings = max(1, FILINGS_PER_TRIANGLE * count)
+        self.scratch = (np.zeros((count, 3)), np.zeros((count, 3)),
                         np.zeros(buckets + 1, np.int32), np.zeros(buckets, np.int32),
-                        np.zeros(count, np.int32))
+                        np.zeros(filings, np.int32), np.zeros((filings, 3), np.int64))
         self.found = np.zeros((FOUND_CAPACITY, 2), np.int32)
         self.cell_size = np.zeros(1)
         self.pairs = np.zeros(1, np.int32)

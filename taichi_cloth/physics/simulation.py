@@ -185,12 +185,15 @@ class Simulation:
         """The positions were set from outside: the crossing pairs are counted afresh."""
         self._crossings = None
 
-    def state_problem(self, x: np.ndarray, v: np.ndarray) -> str | None:
-        """Why the state is not usable (non-finite, over-strained or too fast), or None."""
+    def state_problem(self, x: np.ndarray, v: np.ndarray,
+                      strain: float | None = None) -> str | None:
+        """Why the state is not usable (non-finite, over-strained or too fast), or None;
+        ``strain``: x's largest stretch strain when already taken."""
         settings = self.scene.simulation
         if not (np.isfinite(x).all() and np.isfinite(v).all()):
             return "became non-finite"
-        strain = largest_stretch_strain(self.model, x)
+        if strain is None:
+            strain = largest_stretch_strain(self.model, x)
         if strain > settings.blowup_strain:
             return f"exploded (max strain {strain:.3g} > simulation.blowup_strain " \
                    f"{settings.blowup_strain:g})"
@@ -206,13 +209,14 @@ class Simulation:
         return float(np.mean(np.linalg.norm(v[free], axis=1))) if free.any() else 0.0
 
     def measure(self, frame: int, x: np.ndarray, v: np.ndarray, crossings: int | None = None,
-                halvings: int = 0) -> FrameMetrics:
+                halvings: int = 0, strain: float | None = None) -> FrameMetrics:
         """Metrics of a (checked) state x [m], v [m/s] at ``frame``: energies (kinetic;
         potential = the effects' + the springs'), strain, penetration of the whole surface
         (particles, edge midpoints and triangle centroids: ``metrics.surface_samples``) into
         every collider, mean speed, pairs of triangles through each other
         (``intersections``; ``crossings`` when already counted), centre of mass; with
-        self-collision, how many times the frame's step was halved against tunnelling."""
+        self-collision, how many times the frame's step was halved against tunnelling.
+        ``strain``: x's largest stretch strain when already taken."""
         mass = self.model.host_mass
         kinetic = 0.5 * float(np.sum(mass * np.sum(v * v, axis=1)))
         potential = sum(effect.potential_energy(x, mass) for effect in self.effects) \
@@ -231,7 +235,8 @@ class Simulation:
             extra["strain_halvings"] = halvings
         return FrameMetrics(
             frame=frame, t=self.frame_time(frame), kinetic_energy=kinetic,
-            potential_energy=potential, max_strain=largest_stretch_strain(self.model, x),
+            potential_energy=potential,
+            max_strain=largest_stretch_strain(self.model, x) if strain is None else strain,
             max_penetration=float(depth.max(initial=0.0)),
             penetrating_samples=int(np.count_nonzero(depth)),
             mean_speed=self.mean_free_speed(v),
@@ -251,10 +256,11 @@ class Simulation:
         if self.guards_crossings and self._crossings is None:
             self._crossings = self.intersections.count(self.positions())
         for attempt in range(self.scene.simulation.max_retries + 1):
-            problem, x, v, crossings, halvings = self._advance_refining(frame, record, still)
+            problem, x, v, crossings, halvings, strain = self._advance_refining(frame, record,
+                                                                                still)
             if problem is None:
                 self._crossings = crossings
-                return None if still else self.measure(frame, x, v, crossings, halvings)
+                return None if still else self.measure(frame, x, v, crossings, halvings, strain)
             if attempt == self.scene.simulation.max_retries:
                 break
             record.retries += 1
@@ -271,9 +277,9 @@ class Simulation:
 
     def _advance_refining(self, frame: int, record: RunRecord, still: bool):
         """One try at ``frame`` from the backed-up state: (problem or None, x, v, crossing pairs
-        or None, halvings). A frame is redone at half the step, then a quarter
-        (``REDO_HALVINGS``), the last try kept (its crossings and strain in the metrics), when
-        it ends
+        or None, halvings, x's largest stretch strain or None). A frame is redone at half the
+        step, then a quarter (``REDO_HALVINGS``), the last try kept (its crossings and strain in
+        the metrics), when it ends
         - with more pairs of triangles through each other than it began with, self-collision
           declared: the cloth passed through itself within a step (a penalty acts only once the
           layers are within its thickness);
@@ -291,12 +297,13 @@ class Simulation:
             if halvings:
                 self.state_in.copy_from(self.backup)
                 self.set_time_step(dt / 2 ** halvings, substeps * 2 ** halvings)
-            x = v = None
+            x = v = strain = None
             try:
                 self.advance_frame(frame, record, still)
                 x = self.positions()
                 v = self.state_in.v.to_numpy().astype(np.float64)
-                problem = self.state_problem(x, v)
+                strain = largest_stretch_strain(self.model, x) if np.isfinite(x).all() else None
+                problem = self.state_problem(x, v, strain)
             except SolverBreakdown as breakdown:
                 problem = f"could not be solved for ({breakdown})"
             if problem is not None or not refines:
@@ -307,13 +314,12 @@ class Simulation:
                 tunnelled = crossings > self._crossings
             overstretched = False
             if self.redo_strain > 0:
-                strain = largest_stretch_strain(self.model, x)
                 overstretched = strain > self.redo_strain and strain < REDO_GAIN * strain_before
                 strain_before = strain
             if not (tunnelled or overstretched):
                 break
         self.set_time_step(dt, substeps)
-        return problem, x, v, crossings, halvings
+        return problem, x, v, crossings, halvings, strain
 
     def advance_frame(self, frame: int, record: RunRecord, still: bool = False) -> None:
         """The substeps to ``frame`` (≥ 1: t from (frame − 1)/fps to frame/fps), one kernel

@@ -59,7 +59,7 @@ class PassTimer:
         if ti.static(self.has_self_collision):
             effect = self.self_collision
             if ti.static(rebuild):  # the list built again, as after half the padding
-                effect.rebuild_asked[None] = 1
+                effect.pairs.rebuild_asked[None] = 1
             effect.prepare(state.x, state.v, t)
             for i_p in range(self.model.particle_count):
                 self.out[i_p] = effect.force(self.model, state.x, state.v, i_p,

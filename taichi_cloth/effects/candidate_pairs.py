@@ -1,0 +1,228 @@
+"""Self-collision's candidate pairs: every vertex–triangle and edge–edge pair of the cloth within
+a reach (thickness + padding), in one compact list that ``effects/self_collision.py`` evaluates at
+every force evaluation (docs/physics.md, "Self-collision").
+
+Rebuilt only when the cloth has deformed by half the padding since the last build. Deformed, not
+moved: distances between primitives do not change under a rigid motion, so the test takes the
+rigid motion that best carries the build's positions onto the current ones (Kabsch 1976: the
+polar rotation of Σ x_i·(X_i − C)ᵀ, C their centroid) and compares each particle with where it
+would carry it; if none is more than half the padding off, no pair missing from the list has
+closed by more than the padding (a point of a triangle or segment is a convex combination of its
+corners, so it moved no more than they did). A skirt turning with the dancer keeps its list.
+
+The build (``effects/spatial_hash.py``; serial loops, so the list's order is fixed): the
+triangles' boxes grown by the reach on a grid of cells the size of a mean box, each particle
+walking the triangles filed in its own cell (the vertex–triangle pairs: a vertex and a triangle
+it is not a corner of), and the edges' boxes grown by half the reach, each edge walking the edges
+of higher index filed in its cells (the edge–edge pairs of edges sharing no particle, each found
+once, in the first cell both span); then the exact distance. Pairs are listed in particle order,
+then edge order (``PAIRS_PER_ITEM`` per particle and edge; ``overflow`` counts any dropped), and
+every particle gets the CSR list of its (pair, corner) entries as 4·pair + corner, in pair order.
+"""
+
+import numpy as np
+import taichi as ti
+
+from taichi_cloth.effects.proximity import edge_edge_offset, vertex_triangle_offset
+from taichi_cloth.effects.spatial_hash import BoxGrid
+from taichi_cloth.uploads import upload
+
+PAIRS_PER_ITEM = 8  # the list's capacity per particle and edge (more count as overflow)
+VERTEX_TRIANGLE, EDGE_EDGE = 0, 1  # kinds of pairs
+
+
+@ti.data_oriented
+class CandidatePairs:
+    """The vertex–triangle and edge–edge pairs of a model's cloth within ``reach`` [m], kept
+    while the cloth deforms by less than half of ``padding`` [m] (module docstring)."""
+
+    def __init__(self, model, reach: float, padding: float):
+        garment = model.garment
+        self.model = model
+        self.reach, self.padding = reach, padding
+        particles = model.particle_count
+        self.triangle_count, self.edge_count = len(garment.triangles), len(garment.edges)
+        self.triangle_boxes = BoxGrid(self.triangle_count, model.real)
+        self.edge_boxes = BoxGrid(self.edge_count, model.real)
+        self.corners = ti.Vector.field(3, ti.i32, self.triangle_count)
+        self.ends = ti.Vector.field(2, ti.i32, self.edge_count)
+        # the rebuild test: each particle's offset from the centroid at the last build
+        self.built_offset = ti.Vector.field(3, model.real, particles)
+        self.deformed = ti.field(model.real, ())  # m: the largest departure from a rigid motion
+        self.stale = ti.field(ti.i32, ())  # whether this evaluation rebuilds the list
+        self.rebuild_asked = ti.field(ti.i32, ())  # a rebuild at the next evaluation
+        self.rebuilds = ti.field(ti.i32, ())  # builds since the start
+        self.overflow = ti.field(ti.i32, ())  # candidate pairs dropped from a full list, ever
+        self.capacity = PAIRS_PER_ITEM * (particles + self.edge_count)
+        self.pair_count = ti.field(ti.i32, ())
+        self.pair_kind = ti.field(ti.i32, self.capacity)
+        self.pair_particles = ti.Vector.field(4, ti.i32, self.capacity)
+        self.entry_start = ti.field(ti.i32, particles + 1)
+        self.entry_fill = ti.field(ti.i32, particles)
+        self.entry = ti.field(ti.i32, 4 * self.capacity)
+        self._host = (garment.triangles, garment.edges)
+
+    def upload(self) -> None:
+        triangles, edges = self._host
+        upload([(self.corners, triangles.astype(np.int32)), (self.ends, edges.astype(np.int32))])
+        self.rebuild_asked[None] = 1
+
+    def ask_rebuild(self) -> None:
+        """Rebuild the list at the next ``update`` (``bench`` times the build)."""
+        self.rebuild_asked[None] = 1
+
+    @ti.func
+    def update(self, x):
+        """The list at positions x [m]: measured against the last build, rebuilt when stale (a
+        reduction, then appends: both serial, so their order is fixed)."""
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            self._measure_deformation(x)
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            if self.stale[None]:
+                self._build(x)
+
+    @ti.func
+    def _measure_deformation(self, x):
+        """``deformed``: the largest distance between a particle and where the rigid motion that
+        best fits the cloth since the build carries its build position (module docstring);
+        ``stale`` when it exceeds half the padding or a rebuild was asked."""
+        real = self.model.real
+        particles = self.model.particle_count
+        centroid = ti.Vector.zero(real, 3)
+        covariance = ti.Matrix.zero(real, 3, 3)
+        for i in range(particles):
+            centroid += x[i]
+            covariance += x[i].outer_product(self.built_offset[i])
+        centroid /= particles
+        rotation, _ = ti.polar_decompose(covariance)
+        deformed = real(0.0)
+        for i in range(particles):
+            deformed = ti.max(deformed,
+                              (x[i] - centroid - rotation @ self.built_offset[i]).norm())
+        self.deformed[None] = deformed
+        self.stale[None] = int(self.rebuild_asked[None] != 0
+                               or not deformed <= real(0.5 * self.padding))
+
+    @ti.func
+    def _build(self, x):
+        """The candidate pairs at x and each particle's entries (module docstring)."""
+        real = self.model.real
+        particles = self.model.particle_count
+        self.rebuild_asked[None] = 0
+        self.rebuilds[None] += 1
+        centroid = ti.Vector.zero(real, 3)
+        for i in range(particles):
+            centroid += x[i]
+        centroid /= particles
+        for i in range(particles):
+            self.built_offset[i] = x[i] - centroid
+        self.pair_count[None] = 0
+        reach = real(self.reach)
+        self.triangle_boxes.build(self._box_size(x, self.triangle_boxes, reach, 0))
+        self.edge_boxes.build(self._box_size(x, self.edge_boxes, 0.5 * reach, 1))
+        for i_p in range(particles):
+            self._list_vertex_triangle(x, i_p)
+        for e in range(self.edge_count):
+            self._list_edge_edge(x, e)
+        self._list_entries()
+
+    @ti.func
+    def _box_size(self, x, grid: ti.template(), grow, edges: ti.template()):
+        """Each triangle's (or, with ``edges``, each edge's) box at x grown by ``grow`` [m] into
+        ``grid``; returns their mean largest side [m], the grid's cell."""
+        real = self.model.real
+        total = real(0.0)
+        for i in range(grid.count):
+            low = ti.Vector.zero(real, 3)
+            high = ti.Vector.zero(real, 3)
+            if ti.static(edges):
+                a, b = x[self.ends[i][0]], x[self.ends[i][1]]
+                low, high = ti.min(a, b), ti.max(a, b)
+            else:
+                a, b, c = x[self.corners[i][0]], x[self.corners[i][1]], x[self.corners[i][2]]
+                low, high = ti.min(ti.min(a, b), c), ti.max(ti.max(a, b), c)
+            grid.lower[i] = low - grow
+            grid.upper[i] = high + grow
+            total += (grid.upper[i] - grid.lower[i]).max()
+        return total / ti.max(grid.count, 1)
+
+    @ti.func
+    def _append(self, kind, particles):
+        """A pair at the end of the list (counted as overflow when it is full)."""
+        k = self.pair_count[None]
+        if k < self.capacity:
+            self.pair_kind[k] = kind
+            self.pair_particles[k] = particles
+            self.pair_count[None] = k + 1
+        else:
+            self.overflow[None] += 1
+
+    @ti.func
+    def _list_vertex_triangle(self, x, i_p):
+        """Particle i_p's pairs: the triangles filed in its cell whose grown box holds it, that
+        it is not a corner of, within the reach."""
+        grid = self.triangle_boxes
+        if grid.filed[None]:
+            cell = grid.cell_of(x[i_p])
+            bucket = grid.bucket(cell)
+            for k in range(grid.bucket_start[bucket], grid.bucket_start[bucket + 1]):
+                t = grid.entry_box[k]
+                # nested tests: a kernel's ``and`` evaluates both sides
+                if (grid.entry_cell[k] == cell).all():
+                    if (grid.lower[t] <= x[i_p]).all() and (x[i_p] <= grid.upper[t]).all():
+                        corners = self.corners[t]
+                        if (corners != i_p).all():
+                            if vertex_triangle_offset(x, i_p, corners, self.model.real)[1].norm() \
+                                    <= self.model.real(self.reach):
+                                self._append(VERTEX_TRIANGLE, ti.Vector(
+                                    [i_p, corners[0], corners[1], corners[2]]))
+
+    @ti.func
+    def _list_edge_edge(self, x, e):
+        """Edge e's pairs with the edges of higher index whose grown boxes overlap its own (each
+        pair in the first cell both span), that share no particle with it, within the reach."""
+        grid = self.edge_boxes
+        if grid.filed[None]:
+            ends = self.ends[e]
+            low, high = grid.low_cell[e], grid.high_cell[e]
+            for cell in ti.grouped(ti.ndrange((low[0], high[0] + 1), (low[1], high[1] + 1),
+                                              (low[2], high[2] + 1))):
+                bucket = grid.bucket(cell)
+                first, end = grid.bucket_start[bucket], grid.bucket_start[bucket + 1]
+                for back in range(end - first):  # a bucket's boxes ascend: higher ones first
+                    k = end - 1 - back
+                    other = grid.entry_box[k]
+                    if other <= e:
+                        break
+                    # nested tests: a kernel's ``and`` evaluates both sides
+                    if (grid.entry_cell[k] == cell).all():
+                        if grid.overlap(e, other) \
+                                and (grid.first_common_cell(e, other) == cell).all():
+                            other_ends = self.ends[other]
+                            if other_ends[0] != ends[0] and other_ends[0] != ends[1] \
+                                    and other_ends[1] != ends[0] and other_ends[1] != ends[1]:
+                                if edge_edge_offset(x, ends, other_ends, self.model.real)[2].norm() \
+                                        <= self.model.real(self.reach):
+                                    self._append(EDGE_EDGE, ti.Vector(
+                                        [ends[0], ends[1], other_ends[0], other_ends[1]]))
+
+    @ti.func
+    def _list_entries(self):
+        """Every particle's (pair, slot) entries, in pair order: counted, prefix-summed, filled."""
+        particles = self.model.particle_count
+        for i in range(particles):
+            self.entry_fill[i] = 0
+        for k in range(self.pair_count[None]):
+            for slot in ti.static(range(4)):
+                self.entry_fill[self.pair_particles[k][slot]] += 1
+        self.entry_start[0] = 0
+        for i in range(particles):
+            self.entry_start[i + 1] = self.entry_start[i] + self.entry_fill[i]
+            self.entry_fill[i] = self.entry_start[i]
+        for k in range(self.pair_count[None]):
+            for slot in ti.static(range(4)):
+                i = self.pair_particles[k][slot]
+                self.entry[self.entry_fill[i]] = 4 * k + slot
+                self.entry_fill[i] += 1
