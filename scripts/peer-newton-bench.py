@@ -9,7 +9,7 @@ the project never depends on newton:
 
 (newton 1.8.0 pulls warp-lang 1.19.0 and numpy; no torch, no CUDA needed).
 
-Reference problem, identical to taichi_cloth's ``bench`` (taichi_cloth/studies/bench.py, REFERENCE_MATERIAL,
+Reference problem (``peer_reference.py`` beside this script), identical to taichi_cloth's ``bench`` (taichi_cloth/studies/bench.py, REFERENCE_MATERIAL,
 garment.py, materials.py), rebuilt here in NumPy so this script needs nothing from that project:
 
 - n × n particles 0.01 m apart, horizontal in the x–z plane at y = 1.0 m:
@@ -37,77 +37,25 @@ it as a serial loop in the calling thread (warp/_src/codegen.py cpu_module_templ
 ``for (task_index = 0; task_index < dim->size; ++task_index)``), so newton runs single-threaded
 on CPU; the measured process-CPU-time / wall-time ratio is printed as a check.
 
-Timing like ours: a warm-up batch (compiles kernels, excluded) + one more batch, then ``--repeats``
-repeats of at least ``--seconds`` each of batches of max(1, min(256, round(2e6 / N))) substeps;
-the median repeat is reported.
+Timing like ours (``peer_reference.median_rate``): a warm-up batch (compiles kernels, excluded) +
+one more batch, then ``--repeats`` repeats of at least ``--seconds`` each of batches of
+max(1, min(256, round(2e6 / N))) substeps; the median repeat is reported.
 """
 
 import argparse
 import json
 import os
 import platform
-import statistics
 import sys
 import time
 
 import numpy as np
 import warp as wp
+from peer_reference import DT_S, HEIGHT_M, STIFFNESS, median_rate, numpy_reference, reference_sheet
 
 wp.config.quiet = True  # before newton imports (and initialises) warp
 
 import newton  # noqa: E402
-
-SPACING_M = 0.01
-DT_S = 1.0 / 1920.0
-HEIGHT_M = 1.0
-DENSITY = 0.13  # kg/m²
-GRAVITY = 9.81
-# Per-spring stiffness [N/m], from taichi_cloth.config.materials.spring_constants(REFERENCE_MATERIAL,
-# 0.01, 0.01) computed with /work/main/.venv: stretch_x = stretch_z = 10.0, shear = 2.0, bend = 1.0.
-STIFFNESS = {"stretch": 10.0, "shear": 2.0, "bend": 1.0}
-
-
-def grid_springs(n: int) -> dict:
-    """Spring index pairs per family, same order as taichi_cloth.garment.grid_springs."""
-    index = np.arange(n * n).reshape(n, n)
-
-    def pairs(row_step, column_step):
-        row_end = n - row_step
-        if column_step >= 0:
-            a = index[:row_end, :n - column_step]
-            b = index[row_step:, column_step:]
-        else:
-            a = index[:row_end, -column_step:]
-            b = index[row_step:, :n + column_step]
-        return np.stack([a.ravel(), b.ravel()], axis=1).astype(np.int32)
-
-    return {
-        "stretch": np.concatenate([pairs(0, 1), pairs(1, 0)]),
-        "shear": np.concatenate([pairs(1, 1), pairs(1, -1)]),
-        "bend": np.concatenate([pairs(0, 2), pairs(2, 0)]),
-    }
-
-
-def reference_sheet(n: int):
-    """positions (N,3) float64, masses (N,), pinned (N,) bool, springs {family: (S,2)}."""
-    side = SPACING_M * (n - 1)
-    x = np.linspace(-side / 2, side / 2, n)
-    along = np.linspace(0.0, side, n)
-    xx, aa = np.meshgrid(x, along)
-    positions = np.stack([xx, np.full_like(xx, HEIGHT_M), aa - side / 2], axis=-1).reshape(-1, 3)
-    index = np.arange(n * n).reshape(n, n)
-    tl, tr, bl, br = index[:-1, :-1], index[:-1, 1:], index[1:, :-1], index[1:, 1:]
-    triangles = np.concatenate([np.stack([tl, bl, br], -1).reshape(-1, 3),
-                                np.stack([tl, br, tr], -1).reshape(-1, 3)])
-    p0, p1, p2 = (positions[triangles[:, k]] for k in range(3))
-    area = 0.5 * np.linalg.norm(np.cross(p1 - p0, p2 - p0), axis=1)
-    mass = np.zeros(n * n)
-    for k in range(3):
-        np.add.at(mass, triangles[:, k], DENSITY * area / 3.0)
-    pinned = np.zeros(n * n, bool)
-    pinned[:n] = True
-    return positions, mass, pinned, grid_springs(n)
-
 
 def build_model(n: int):
     positions, mass, pinned, springs = reference_sheet(n)
@@ -149,37 +97,12 @@ class NewtonCloth:
         return self.state_0.particle_q.numpy()
 
 
-def numpy_step(x, v, first, second, rest, k, inv_mass, weight, h):
-    """taichi_cloth.bench.NumpyCloth.step (float32), the oracle for the check below."""
-    d = x[second] - x[first]
-    length = np.sqrt(np.einsum("sk,sk->s", d, d))
-    spring = (k * (length - rest) / length)[:, None] * d
-    total = weight.copy()
-    for c in range(3):
-        total[:, c] += (np.bincount(first, spring[:, c], len(x))
-                        - np.bincount(second, spring[:, c], len(x))).astype(np.float32)
-    v_new = v + h * inv_mass[:, None] * total
-    v_new[inv_mass == 0] = 0.0
-    return x + h * v_new, v_new
-
-
 def check(n: int, simulated: float) -> dict:
     cloth = NewtonCloth(n)
     steps = round(simulated / DT_S)
     cloth.substeps(steps)
     x = cloth.x()
-    # NumPy oracle of our formula on the same sheet, float32.
-    first = np.concatenate([p[:, 0] for p in cloth.springs.values()])
-    second = np.concatenate([p[:, 1] for p in cloth.springs.values()])
-    k = np.concatenate([np.full(len(p), STIFFNESS[f], np.float32) for f, p in cloth.springs.items()])
-    x0 = cloth.positions.astype(np.float32)
-    rest = np.linalg.norm(cloth.positions[second] - cloth.positions[first], axis=1).astype(np.float32)
-    inv_mass = np.where(cloth.pinned, 0.0, 1.0 / cloth.mass).astype(np.float32)
-    weight = np.zeros_like(x0)
-    weight[:, 1] = -GRAVITY * cloth.mass
-    xr, vr = x0, np.zeros_like(x0)
-    for _ in range(steps):
-        xr, vr = numpy_step(xr, vr, first, second, rest, k, inv_mass, weight, np.float32(DT_S))
+    xr, x0 = numpy_reference(n, steps)  # NumPy oracle of our formula on the same sheet
     free = x[-n:]
     return {
         "check_size": n, "simulated_s": steps * DT_S, "substeps": steps,
@@ -197,32 +120,12 @@ def check(n: int, simulated: float) -> dict:
 
 def bench(n: int, seconds: float, repeats: int) -> dict:
     cloth = NewtonCloth(n)
-    particles = n * n
-    batch = max(1, min(256, round(2e6 / particles)))
-    started = time.perf_counter()
-    cloth.substeps(batch)  # compiles (or loads the kernel cache)
-    compile_seconds = time.perf_counter() - started
-    cloth.substeps(batch)
-    rates, cpu_ratio = [], []
-    for _ in range(repeats):
-        done, t0, c0 = 0, time.perf_counter(), time.process_time()
-        while True:
-            cloth.substeps(batch)
-            done += batch
-            elapsed = time.perf_counter() - t0
-            if elapsed >= seconds:
-                break
-        cpu_ratio.append((time.process_time() - c0) / elapsed)
-        rates.append(done / elapsed)
-    rate = statistics.median(rates)
+    timing = median_rate(cloth.substeps, n * n, seconds, repeats)
     return {
         "benchmark": "reference", "simulator": "newton", "integrator": "SolverSemiImplicit",
-        "device": "cpu", "size": n, "particles": particles, "springs": int(cloth.model.spring_count),
-        "substeps_per_second": rate, "particle_substeps_per_second": rate * particles,
-        "repeats": [round(r, 3) for r in rates], "batch": batch, "dt": DT_S,
-        "finite": bool(np.isfinite(cloth.x()).all()),
-        "compile_seconds": round(compile_seconds, 3), "build_seconds": round(cloth.build_seconds, 3),
-        "process_cpu_per_wall": [round(r, 3) for r in cpu_ratio],
+        "device": "cpu", "size": n, "particles": n * n, "springs": int(cloth.model.spring_count),
+        **timing, "dt": DT_S, "finite": bool(np.isfinite(cloth.x()).all()),
+        "build_seconds": round(cloth.build_seconds, 3),
         "newton": newton.__version__, "warp": wp.config.version,
     }
 
