@@ -42,7 +42,6 @@ one more batch, then ``--repeats`` repeats of at least ``--seconds`` each of bat
 max(1, min(256, round(2e6 / N))) substeps; the median repeat is reported.
 """
 
-import argparse
 import json
 import os
 import platform
@@ -51,7 +50,8 @@ import time
 
 import numpy as np
 import warp as wp
-from peer_reference import DT_S, HEIGHT_M, STIFFNESS, median_rate, numpy_reference, reference_sheet
+from peer_reference import (DT_S, HEIGHT_M, STIFFNESS, median_rate, numpy_reference,
+                            peer_arguments, reference_sheet)
 
 wp.config.quiet = True  # before newton imports (and initialises) warp
 
@@ -131,14 +131,7 @@ def bench(n: int, seconds: float, repeats: int) -> dict:
 
 
 def main():
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--sizes", type=int, nargs="+", default=[32, 64, 128, 256])
-    parser.add_argument("--seconds", type=float, default=1.0, help="minimum length of a repeat")
-    parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--check-size", type=int, default=32)
-    parser.add_argument("--check-seconds", type=float, default=0.1, help="simulated time")
-    parser.add_argument("--no-check", action="store_true")
-    args = parser.parse_args()
+    args = peer_arguments(__doc__.splitlines()[0])
 
     wp.init()
     print(f"newton {newton.__version__}, warp {wp.config.version} (mode {wp.config.mode}), "

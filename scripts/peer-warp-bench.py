@@ -19,7 +19,6 @@ are ``peer_reference.py``'s (the same sheet, springs, masses, gravity, f32 and d
 ``bench``). Warp runs a CPU kernel as a serial loop in the calling thread, so this is one thread.
 """
 
-import argparse
 import json
 import os
 import platform
@@ -28,7 +27,7 @@ import sys
 import numpy as np
 import warp as wp
 from peer_reference import (DT_S, GRAVITY, HEIGHT_M, median_rate, numpy_reference,
-                            reference_sheet, spring_arrays)
+                            peer_arguments, reference_sheet, spring_arrays)
 
 wp.config.quiet = True
 
@@ -107,17 +106,12 @@ def check(n: int, simulated: float) -> dict:
 
 
 def main():
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--sizes", type=int, nargs="+", default=[32, 64, 128, 256])
-    parser.add_argument("--seconds", type=float, default=1.0, help="minimum length of a repeat")
-    parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--check-size", type=int, default=32)
-    parser.add_argument("--check-seconds", type=float, default=0.1, help="simulated time")
-    args = parser.parse_args()
+    args = peer_arguments(__doc__.splitlines()[0])
     wp.init()
     print(f"warp {wp.config.version} (mode {wp.config.mode}), python "
           f"{platform.python_version()}, {os.cpu_count()} logical CPUs; one thread")
-    print(json.dumps({"check": check(args.check_size, args.check_seconds)}))
+    if not args.no_check:
+        print(json.dumps({"check": check(args.check_size, args.check_seconds)}))
     print(f"{'size':>6} {'particles':>10} {'substeps/s':>12} {'particle-substeps/s':>20}")
     for n in args.sizes:
         cloth = WarpCloth(n)

@@ -6,6 +6,7 @@ both use (the same as ``bench``'s: the median of repeats of at least ``seconds``
 See ``peer-newton-bench.py``'s docstring for how each constant follows from the project's scene.
 """
 
+import argparse
 import statistics
 import time
 
@@ -127,3 +128,15 @@ def median_rate(run_substeps, particles: int, seconds: float, repeats: int) -> d
             "repeats": [round(r, 3) for r in rates], "batch": batch,
             "compile_seconds": round(compile_seconds, 3),
             "process_cpu_per_wall": [round(r, 3) for r in cpu_ratio]}
+
+
+def peer_arguments(description: str) -> argparse.Namespace:
+    """The peer scripts' flags: sizes, the timing and the check against the NumPy step."""
+    parser = argparse.ArgumentParser(description=description)
+    parser.add_argument("--sizes", type=int, nargs="+", default=[32, 64, 128, 256])
+    parser.add_argument("--seconds", type=float, default=1.0, help="minimum length of a repeat")
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--check-size", type=int, default=32)
+    parser.add_argument("--check-seconds", type=float, default=0.1, help="simulated time")
+    parser.add_argument("--no-check", action="store_true")
+    return parser.parse_args()
