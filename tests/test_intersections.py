@@ -128,3 +128,15 @@ def test_adjacent_triangles_do_not_count_and_a_fold_through_does():
     counter = IntersectionCounter(np.vstack([strip, [[4, 5, 6]]]), 7)
     assert counter.count(points) == 2
     assert counter.pairs_at(points).tolist() == [[0, 2], [1, 2]]
+
+
+def test_non_finite_positions_are_refused_not_walked():
+    counter = IntersectionCounter(np.array([[0, 1, 2], [3, 4, 5]]), 6)
+    positions = np.zeros((6, 3))
+    positions[[1, 4], 0] = 1.0
+    positions[[2, 5], 2] = 1.0
+    positions[3:, 1] = 0.5
+    assert counter.count(positions) == 0
+    positions[4, 0] = np.nan
+    with pytest.raises(ValueError, match="non-finite"):
+        counter.count(positions)

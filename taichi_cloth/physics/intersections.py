@@ -262,9 +262,13 @@ class IntersectionCounter:
         self.pairs = np.zeros(1, np.int32)
 
     def count(self, positions: np.ndarray) -> int:
-        """Intersecting pairs of non-adjacent triangles at ``positions`` (N, 3) [m]."""
+        """Intersecting pairs of non-adjacent triangles at ``positions`` (N, 3) [m], which must
+        be finite (the runs count only states their guard passed; a non-finite box would give
+        the grid walks unbounded cell ranges)."""
         if len(self.triangles) < 2:
             return 0
+        if not np.isfinite(positions).all():
+            raise ValueError("IntersectionCounter.count: non-finite positions")
         count_intersecting_pairs(np.ascontiguousarray(positions, dtype=np.float64),
                                  self.triangles, *self.scratch, self.found, self.cell_size,
                                  self.pairs)
