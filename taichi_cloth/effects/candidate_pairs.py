@@ -10,14 +10,16 @@ would carry it; if none is more than half the padding off, no pair missing from 
 closed by more than the padding (a point of a triangle or segment is a convex combination of its
 corners, so it moved no more than they did). A skirt turning with the dancer keeps its list.
 
-The build (``effects/spatial_hash.py``; serial loops, so the list's order is fixed): the
-triangles' boxes grown by the reach on a grid of cells the size of a mean box, each particle
-walking the triangles filed in its own cell (the vertex–triangle pairs: a vertex and a triangle
-it is not a corner of), and the edges' boxes grown by half the reach, each edge walking the edges
-of higher index filed in its cells (the edge–edge pairs of edges sharing no particle, each found
-once, in the first cell both span); then the exact distance. Pairs are listed in particle order,
-then edge order (``PAIRS_PER_ITEM`` per particle and edge; ``overflow`` counts any dropped), and
-every particle gets the CSR list of its (pair, corner) entries as 4·pair + corner, in pair order.
+The build (``effects/spatial_hash.py``): the triangles' boxes grown by the reach on a grid of
+cells the size of a mean box, each particle walking the triangles filed in its own cell (the
+vertex–triangle pairs: a vertex and a triangle it is not a corner of), and the edges' boxes grown
+by half the reach, each edge walking the edges of higher index filed in its cells (the edge–edge
+pairs of edges sharing no particle, each found once, in the first cell both span); then the
+exact distance. The grids fill on one thread (each bucket in box order), the walks run in
+parallel, each into its own row of finds (up to ``FOUND_PER_ITEM``), and one thread lists the
+finds in particle order, then edge order (up to ``PAIRS_PER_ITEM`` per particle and edge;
+``overflow`` counts any dropped): the same list whatever the threads did. Every particle gets
+the CSR list of its (pair, corner) entries as 4·pair + corner, in pair order.
 """
 
 import numpy as np
@@ -28,6 +30,7 @@ from taichi_cloth.effects.spatial_hash import BoxGrid
 from taichi_cloth.uploads import upload
 
 PAIRS_PER_ITEM = 8  # the list's capacity per particle and edge (more count as overflow)
+FOUND_PER_ITEM = 16  # the pairs one particle's or edge's walk may find (more count as overflow)
 VERTEX_TRIANGLE, EDGE_EDGE = 0, 1  # kinds of pairs
 
 
@@ -57,6 +60,9 @@ class CandidatePairs:
         self.pair_count = ti.field(ti.i32, ())
         self.pair_kind = ti.field(ti.i32, self.capacity)
         self.pair_particles = ti.Vector.field(4, ti.i32, self.capacity)
+        # each walk's finds: a particle's triangles, then an edge's edges of higher index
+        self.found = ti.field(ti.i32, (particles + self.edge_count, FOUND_PER_ITEM))
+        self.found_count = ti.field(ti.i32, particles + self.edge_count)
         self.entry_start = ti.field(ti.i32, particles + 1)
         self.entry_fill = ti.field(ti.i32, particles)
         self.entry = ti.field(ti.i32, 4 * self.capacity)
@@ -73,15 +79,29 @@ class CandidatePairs:
 
     @ti.func
     def update(self, x):
-        """The list at positions x [m]: measured against the last build, rebuilt when stale (a
-        reduction, then appends: both serial, so their order is fixed)."""
+        """The list at positions x [m]: measured against the last build and, when stale, built
+        again: the grids on one thread (their buckets fill in box order), each particle's and
+        edge's walk in parallel into its own row of ``found`` (in bucket order: the same finds
+        in the same order whatever the threads do), then the list and the entries on one thread
+        in particle and edge order."""
         ti.loop_config(serialize=True)
         for _ in range(1):
             self._measure_deformation(x)
         ti.loop_config(serialize=True)
         for _ in range(1):
             if self.stale[None]:
-                self._build(x)
+                self._build_grids(x)
+        for i_p in range(self.model.particle_count):
+            if self.stale[None]:
+                self._list_vertex_triangle(x, i_p)
+        for e in range(self.edge_count):
+            if self.stale[None]:
+                self._list_edge_edge(x, e)
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            if self.stale[None]:
+                self._gather_found()
+                self._list_entries()
 
     @ti.func
     def _measure_deformation(self, x):
@@ -106,8 +126,9 @@ class CandidatePairs:
                                or not deformed <= real(0.5 * self.padding))
 
     @ti.func
-    def _build(self, x):
-        """The candidate pairs at x and each particle's entries (module docstring)."""
+    def _build_grids(self, x):
+        """The build's reference positions and the boxes of the triangles and edges at x filed
+        in their grids."""
         real = self.model.real
         particles = self.model.particle_count
         self.rebuild_asked[None] = 0
@@ -118,15 +139,9 @@ class CandidatePairs:
         centroid /= particles
         for i in range(particles):
             self.built_offset[i] = x[i] - centroid
-        self.pair_count[None] = 0
         reach = real(self.reach)
         self.triangle_boxes.build(self._box_size(x, self.triangle_boxes, reach, 0))
         self.edge_boxes.build(self._box_size(x, self.edge_boxes, 0.5 * reach, 1))
-        for i_p in range(particles):
-            self._list_vertex_triangle(x, i_p)
-        for e in range(self.edge_count):
-            self._list_edge_edge(x, e)
-        self._list_entries()
 
     @ti.func
     def _box_size(self, x, grid: ti.template(), grow, edges: ti.template()):
@@ -149,21 +164,46 @@ class CandidatePairs:
         return total / ti.max(grid.count, 1)
 
     @ti.func
-    def _append(self, kind, particles):
-        """A pair at the end of the list (counted as overflow when it is full)."""
-        k = self.pair_count[None]
-        if k < self.capacity:
-            self.pair_kind[k] = kind
-            self.pair_particles[k] = particles
-            self.pair_count[None] = k + 1
+    def _find(self, owner, other):
+        """Item ``other`` into walk ``owner``'s row of ``found`` (counted as overflow when full)."""
+        n = self.found_count[owner]
+        if n < FOUND_PER_ITEM:
+            self.found[owner, n] = other
+            self.found_count[owner] = n + 1
         else:
-            self.overflow[None] += 1
+            ti.atomic_add(self.overflow[None], 1)
+
+    @ti.func
+    def _gather_found(self):
+        """The list: every particle's finds, then every edge's, as pairs of four particles
+        (counted as overflow past the list's capacity)."""
+        particles = self.model.particle_count
+        self.pair_count[None] = 0
+        for owner in range(particles + self.edge_count):
+            for n in range(self.found_count[owner]):
+                other = self.found[owner, n]
+                kind, ids = VERTEX_TRIANGLE, ti.Vector([0, 0, 0, 0])
+                if owner < particles:
+                    corners = self.corners[other]
+                    ids = ti.Vector([owner, corners[0], corners[1], corners[2]])
+                else:
+                    ends, other_ends = self.ends[owner - particles], self.ends[other]
+                    kind = EDGE_EDGE
+                    ids = ti.Vector([ends[0], ends[1], other_ends[0], other_ends[1]])
+                k = self.pair_count[None]
+                if k < self.capacity:
+                    self.pair_kind[k] = kind
+                    self.pair_particles[k] = ids
+                    self.pair_count[None] = k + 1
+                else:
+                    self.overflow[None] += 1
 
     @ti.func
     def _list_vertex_triangle(self, x, i_p):
         """Particle i_p's pairs: the triangles filed in its cell whose grown box holds it, that
-        it is not a corner of, within the reach."""
+        it is not a corner of, within the reach: its row of ``found``."""
         grid = self.triangle_boxes
+        self.found_count[i_p] = 0
         if grid.filed[None]:
             cell = grid.cell_of(x[i_p])
             bucket = grid.bucket(cell)
@@ -176,14 +216,16 @@ class CandidatePairs:
                         if (corners != i_p).all():
                             if vertex_triangle_offset(x, i_p, corners, self.model.real)[1].norm() \
                                     <= self.model.real(self.reach):
-                                self._append(VERTEX_TRIANGLE, ti.Vector(
-                                    [i_p, corners[0], corners[1], corners[2]]))
+                                self._find(i_p, t)
 
     @ti.func
     def _list_edge_edge(self, x, e):
         """Edge e's pairs with the edges of higher index whose grown boxes overlap its own (each
-        pair in the first cell both span), that share no particle with it, within the reach."""
+        pair in the first cell both span), that share no particle with it, within the reach: its
+        row of ``found``."""
         grid = self.edge_boxes
+        owner = self.model.particle_count + e
+        self.found_count[owner] = 0
         if grid.filed[None]:
             ends = self.ends[e]
             low, high = grid.low_cell[e], grid.high_cell[e]
@@ -203,10 +245,10 @@ class CandidatePairs:
                             other_ends = self.ends[other]
                             if other_ends[0] != ends[0] and other_ends[0] != ends[1] \
                                     and other_ends[1] != ends[0] and other_ends[1] != ends[1]:
-                                if edge_edge_offset(x, ends, other_ends, self.model.real)[2].norm() \
-                                        <= self.model.real(self.reach):
-                                    self._append(EDGE_EDGE, ti.Vector(
-                                        [ends[0], ends[1], other_ends[0], other_ends[1]]))
+                                _, _, offset = edge_edge_offset(x, ends, other_ends,
+                                                                self.model.real)
+                                if offset.norm() <= self.model.real(self.reach):
+                                    self._find(owner, other)
 
     @ti.func
     def _list_entries(self):
