@@ -175,13 +175,14 @@ def closest_distance_segments(a, b, c, d) -> float:
 
 
 @functools.cache
-def folded_sheet_physics():
-    """An 8 × 8 sheet (2 cm spacing) with self-collision at its defaults (thickness 4 mm, reach
-    8 mm), built once: (model, forces, state, output field, effect)."""
+def folded_sheet_physics(columns: int = 8, side: float = 0.14):
+    """A columns × columns sheet of ``side`` [m] (by default 2 cm spacing) with self-collision at
+    its defaults (thickness 4 mm, reach 8 mm), built once each: (model, forces, state, output
+    field, effect)."""
     from taichi_cloth.cloth.garment import build_garment
     from taichi_cloth.config.materials import PRESETS
     from taichi_cloth.config.tables import ClothConfig
-    cloth = ClothConfig(shape="sheet", resolution=(8, 8), size=(0.14, 0.14), height=1.0,
+    cloth = ClothConfig(shape="sheet", resolution=(columns, columns), size=(side, side), height=1.0,
                         orientation="horizontal", pin="none")
     model = Model(build_garment(cloth, PRESETS["cotton"]), "f64")
     physics = assemble(model, [(SelfCollision, SelfCollisionSettings())])
@@ -190,16 +191,17 @@ def folded_sheet_physics():
         effect
 
 
-def folded_positions(model) -> np.ndarray:
-    """The sheet folded in half across x (the right half turned back over the left, 6 mm above
-    it), every particle jittered by up to 2 mm: pairs at every distance around the reach."""
+def folded_positions(model, gap: float = 0.006, jitter: float = 0.002) -> np.ndarray:
+    """The sheet folded in half across x (the right half turned back over the left, ``gap``
+    [m] above it), every particle jittered by up to ``jitter`` [m]: pairs at every distance
+    around the reach."""
     rest = model.garment.positions
     x = rest.copy()
     middle = 0.5 * (rest[:, 0].min() + rest[:, 0].max())
     right = rest[:, 0] > middle + 1e-9
     x[right, 0] = 2 * middle - rest[right, 0]
-    x[right, 1] += 0.006
-    return x + np.random.default_rng(7).uniform(-0.002, 0.002, x.shape)
+    x[right, 1] += gap
+    return x + np.random.default_rng(7).uniform(-jitter, jitter, x.shape)
 
 
 def listed_pairs(pairs) -> set:
@@ -209,11 +211,17 @@ def listed_pairs(pairs) -> set:
     return {(int(kind), tuple(int(i) for i in ids)) for kind, ids in zip(kinds, particles)}
 
 
-def test_the_candidate_list_holds_exactly_the_pairs_within_the_reach():
+@pytest.mark.parametrize("columns, side, gap, jitter", [
+    (8, 0.14, 0.006, 0.002),  # 2 cm spacing, layers 6 mm apart
+    (12, 0.0915, 0.004, 0.001),  # 8.3 mm spacing: the thickness bound's largest reach, 4 mm apart
+])
+def test_the_candidate_list_holds_exactly_the_pairs_within_the_reach(columns, side, gap, jitter):
     """Against a brute-force NumPy search over every vertex and triangle it is not a corner of
-    and every two edges that share no particle, on the folded sheet."""
-    model, forces, state, out, effect = folded_sheet_physics()
-    x = folded_positions(model)
+    and every two edges that share no particle, on a folded sheet: with pairs at every distance
+    around the reach, and as densely as the thickness bound allows (every walk's and the list's
+    capacity holds)."""
+    model, forces, state, out, effect = folded_sheet_physics(columns, side)
+    x = folded_positions(model, gap, jitter)
     state.x.from_numpy(x)
     state.v.fill(0.0)
     effect.pairs.ask_rebuild()

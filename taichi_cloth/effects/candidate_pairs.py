@@ -29,8 +29,12 @@ from taichi_cloth.effects.proximity import edge_edge_offset, vertex_triangle_off
 from taichi_cloth.effects.spatial_hash import BoxGrid
 from taichi_cloth.uploads import upload
 
-PAIRS_PER_ITEM = 8  # the list's capacity per particle and edge (more count as overflow)
-FOUND_PER_ITEM = 16  # the pairs one particle's or edge's walk may find (more count as overflow)
+# Capacities: with the reach near its largest (thickness just below half the shortest edge), a
+# sheet folded onto itself, the layers a thickness apart and jittered by a quarter of it, finds
+# up to 29 pairs in one walk and 11 per particle and edge in all (tests/test_self_collision.py);
+# a third layer adds about half as many. More count as overflow, which the run reports.
+PAIRS_PER_ITEM = 24  # the list's capacity per particle and edge
+FOUND_PER_ITEM = 48  # the pairs one particle's or edge's walk may find
 VERTEX_TRIANGLE, EDGE_EDGE = 0, 1  # kinds of pairs
 
 
@@ -112,9 +116,10 @@ class CandidatePairs:
         particles = self.model.particle_count
         centroid = ti.Vector.zero(real, 3)
         covariance = ti.Matrix.zero(real, 3, 3)
+        anchor = x[0]  # Σ (x_i − anchor)·(X_i − C)ᵀ: C's rounding not scaled by |x| far away
         for i in range(particles):
             centroid += x[i]
-            covariance += x[i].outer_product(self.built_offset[i])
+            covariance += (x[i] - anchor).outer_product(self.built_offset[i])
         centroid /= particles
         rotation, _ = ti.polar_decompose(covariance)
         deformed = real(0.0)

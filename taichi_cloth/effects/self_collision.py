@@ -208,8 +208,8 @@ class SelfCollision(Effect):
         return stiffness, damping
 
     def frame_metrics(self, x: np.ndarray) -> dict:
-        """Candidate pairs dropped from the full list since the start (0 unless
-        ``candidate_pairs.PAIRS_PER_ITEM`` is too small for the scene: then contacts can be missed), the list's
+        """Candidate pairs dropped since the start (0 unless the capacities of
+        ``candidate_pairs`` are too small for the scene: then contacts can be missed), the list's
         builds since the start and its pairs at the last build."""
         return {"self_collision_overflow": int(self.pairs.overflow[None]),
                 "self_collision_builds": int(self.pairs.rebuilds[None]),

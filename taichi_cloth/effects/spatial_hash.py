@@ -1,5 +1,5 @@
 """A uniform grid of axis-aligned boxes hashed into buckets, rebuilt inside a kernel (no Python
-per step): the broad phase of self-collision (``effects/self_collision.py``).
+per step): the broad phase of self-collision (``effects/candidate_pairs.py``).
 
 ``build(cell_size)`` files each of the ``count`` boxes (``lower``, ``upper`` [m], filled by the
 caller) under every grid cell ⌊p / cell_size⌋ that the box overlaps, in buckets of a hash of the
@@ -83,9 +83,9 @@ class BoxGrid:
 
     @ti.func
     def _entries(self, cell_size):
-        """The entries [count] the boxes take on cells of ``cell_size`` (as a real, so that no
-        integer overflows on exploded positions)."""
-        entries = self.real(0.0)
+        """The entries [count] the boxes take on cells of ``cell_size`` (summed in float64, exact
+        to 2⁵³, so that no integer overflows on exploded positions)."""
+        entries = ti.f64(0.0)
         for i in range(self.count):
             span = ti.floor(self.upper[i] / cell_size) - ti.floor(self.lower[i] / cell_size) + 1
             entries += span[0] * span[1] * span[2]
@@ -118,6 +118,8 @@ class BoxGrid:
         for b in range(self.bucket_count):
             self.bucket_start[b + 1] = self.bucket_start[b] + self.bucket_fill[b]
             self.bucket_fill[b] = self.bucket_start[b]
+        if self.bucket_start[self.bucket_count] > self.capacity:  # never written past the end
+            self.filed[None] = 0
         if self.filed[None]:
             for i in range(self.count):
                 low, high = self.low_cell[i], self.high_cell[i]

@@ -188,6 +188,11 @@ def run_in_folder(scene: Scene, frame_count: int, folder: OwnedFolder, quiet: bo
     folder.finish(resume)
     if not quiet:
         print(summary(stats, directory))
+    dropped = stats["per_frame"][-1].get("self_collision_overflow", 0) if stats["per_frame"] else 0
+    if dropped:
+        print(f"warning: {stats['scene']}: effects.self_collision: {dropped} candidate pairs did "
+              f"not fit its list, so contacts may have been missed (self_collision_overflow in "
+              f"stats.json)", file=sys.stderr)
     return 0
 
 

@@ -22,7 +22,7 @@ import taichi as ti
 
 from taichi_cloth.effects.spatial_hash import hash_cell, power_of_two_at_least
 
-HASH_LOAD = 2  # hash buckets per filing (rounded up to a power of two)
+HASH_LOAD = 2  # hash buckets per triangle (rounded up to a power of two)
 FILINGS_PER_TRIANGLE = 8  # a triangle's box filed under this many cells at most, on average
 MAX_DOUBLINGS = 40  # of the cell, until the filings fit (more: non-finite positions)
 PLANE_TOLERANCE = 1e-12  # m: a vertex this close to the other triangle's plane lies on it
@@ -193,7 +193,7 @@ def count_intersecting_pairs(x: ti.types.ndarray(dtype=vec3, ndim=1),
     for _ in range(1):  # cells of the mean box side, doubled until the filings fit
         size = ti.max(cell_size[0] / triangles.shape[0], 1e-9)
         for _doubling in range(MAX_DOUBLINGS):
-            filings = 0.0
+            filings = ti.f64(0.0)  # exact to 2⁵³ filings
             for t in range(triangles.shape[0]):
                 span = ti.floor(high[t] / size) - ti.floor(low[t] / size) + 1
                 filings += span[0] * span[1] * span[2]
@@ -215,8 +215,9 @@ def count_intersecting_pairs(x: ti.types.ndarray(dtype=vec3, ndim=1),
         for cell in ti.grouped(ti.ndrange((first[0], last[0] + 1), (first[1], last[1] + 1),
                                           (first[2], last[2] + 1))):
             slot = ti.atomic_add(bucket_fill[hash_cell(cell, bucket_count)], 1)
-            filed[slot] = t
-            filed_cell[slot] = cell
+            if slot < capacity:  # (the doubling keeps the filings within it)
+                filed[slot] = t
+                filed_cell[slot] = cell
     for a in range(triangles.shape[0]):
         corner_a = triangles[a]
         first, last = cells_spanned(low[a], high[a], cell_size[0])
