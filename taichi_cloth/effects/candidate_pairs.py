@@ -55,6 +55,7 @@ class CandidatePairs:
         self.ends = ti.Vector.field(2, ti.i32, self.edge_count)
         # the rebuild test: each particle's offset from the centroid at the last build
         self.built_offset = ti.Vector.field(3, model.real, particles)
+        self.centroid = ti.Vector.field(3, model.real, ())  # m: of the last evaluation's x
         self.deformed = ti.field(model.real, ())  # m: the largest departure from a rigid motion
         self.stale = ti.field(ti.i32, ())  # whether this evaluation rebuilds the list
         self.rebuild_asked = ti.field(ti.i32, ())  # a rebuild at the next evaluation
@@ -121,6 +122,7 @@ class CandidatePairs:
             centroid += x[i]
             covariance += (x[i] - anchor).outer_product(self.built_offset[i])
         centroid /= particles
+        self.centroid[None] = centroid
         rotation, _ = ti.polar_decompose(covariance)
         deformed = real(0.0)
         for i in range(particles):
@@ -132,18 +134,13 @@ class CandidatePairs:
 
     @ti.func
     def _build_grids(self, x):
-        """The build's reference positions and the boxes of the triangles and edges at x filed
-        in their grids."""
+        """The build's reference positions (offsets from the centroid that the rebuild test
+        took of x) and the boxes of the triangles and edges at x filed in their grids."""
         real = self.model.real
-        particles = self.model.particle_count
         self.rebuild_asked[None] = 0
         self.rebuilds[None] += 1
-        centroid = ti.Vector.zero(real, 3)
-        for i in range(particles):
-            centroid += x[i]
-        centroid /= particles
-        for i in range(particles):
-            self.built_offset[i] = x[i] - centroid
+        for i in range(self.model.particle_count):
+            self.built_offset[i] = x[i] - self.centroid[None]
         reach = real(self.reach)
         self.triangle_boxes.build(self._box_size(x, self.triangle_boxes, reach, 0))
         self.edge_boxes.build(self._box_size(x, self.edge_boxes, 0.5 * reach, 1))
@@ -219,8 +216,8 @@ class CandidatePairs:
                     if (grid.lower[t] <= x[i_p]).all() and (x[i_p] <= grid.upper[t]).all():
                         corners = self.corners[t]
                         if (corners != i_p).all():
-                            if vertex_triangle_offset(x, i_p, corners, self.model.real)[1].norm() \
-                                    <= self.model.real(self.reach):
+                            _, offset = vertex_triangle_offset(x, i_p, corners, self.model.real)
+                            if offset.norm() <= self.model.real(self.reach):
                                 self._find(i_p, t)
 
     @ti.func

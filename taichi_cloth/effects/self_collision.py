@@ -113,21 +113,17 @@ class SelfCollision(Effect):
         of a corner or end: its weight, negative on the second primitive)."""
         real = self.model.real
         ids = self.pairs.pair_particles[k]
-        active, force, stiffness, damping = 0, ti.Vector.zero(real, 3), \
-            ti.Matrix.zero(real, 3, 3), ti.Matrix.zero(real, 3, 3)
+        force, stiffness, damping = ti.Vector.zero(real, 3), ti.Matrix.zero(real, 3, 3), \
+            ti.Matrix.zero(real, 3, 3)
         share = ti.Vector.zero(real, 4)
-        if self.pairs.pair_kind[k] == VERTEX_TRIANGLE:
+        if self.pairs.pair_kind[k] == VERTEX_TRIANGLE:  # (an inactive pair's force is 0)
             corners = ti.Vector([ids[1], ids[2], ids[3]])
-            active, weights, force, stiffness, damping = self._vertex_triangle(x, v, ids[0],
-                                                                               corners)
+            weights, force, stiffness, damping = self._vertex_triangle(x, v, ids[0], corners)
             share = ti.Vector([1.0, -weights[0], -weights[1], -weights[2]], real)
         else:
-            active, s, u, force, stiffness, damping = self._edge_edge(
+            s, u, force, stiffness, damping = self._edge_edge(
                 x, v, ti.Vector([ids[0], ids[1]]), ti.Vector([ids[2], ids[3]]))
             share = ti.Vector([1 - s, s, u - 1, -u], real)
-        if not active:
-            share = ti.Vector.zero(real, 4)
-            force = ti.Vector.zero(real, 3)
         self.pair_force[k] = force
         self.pair_share[k] = share
         if ti.static(self.blocks):
@@ -137,9 +133,9 @@ class SelfCollision(Effect):
     @ti.func
     def _pair(self, mass, offset, relative_velocity):
         """The penalty between two points ``offset`` apart [m] (first minus second) with that
-        relative velocity, for ``mass`` [kg]: (active, force on the first [N], its stiffness
-        block −m·k̂·n·nᵀ and damping block), inactive beyond the thickness or when the normal
-        force is clamped to 0 (leaving fast: its blocks would make release sticky)."""
+        relative velocity, for ``mass`` [kg]: (force on the first [N], its stiffness block
+        −m·k̂·n·nᵀ and damping block), all zero beyond the thickness or when the normal force is
+        clamped to 0 (leaving fast: its blocks would make release sticky)."""
         real = self.model.real
         distance = offset.norm()
         normal = offset / ti.max(distance, 1e-30)
@@ -156,31 +152,30 @@ class SelfCollision(Effect):
                 stiffness = -mass * k_hat * normal.outer_product(normal)
                 damping = penalty_damping_block(mass, depth, normal, relative_velocity, k_hat,
                                                 zeta, mu, real)
-        return active, force, stiffness, damping
+        return force, stiffness, damping
 
     @ti.func
     def _vertex_triangle(self, x, v, i_p, corners):
-        """Vertex i_p against the triangle of ``corners``: (active, barycentric weights of the
-        closest point, force on the vertex, blocks)."""
+        """Vertex i_p against the triangle of ``corners``: (barycentric weights of the closest
+        point, force on the vertex, blocks)."""
         weights, offset = vertex_triangle_offset(x, i_p, corners, self.model.real)
         closest_velocity = weights[0] * v[corners[0]] + weights[1] * v[corners[1]] \
             + weights[2] * v[corners[2]]
-        active, force, stiffness, damping = self._pair(
-            self.model.particle_mass[i_p], offset, v[i_p] - closest_velocity)
-        return active, weights, force, stiffness, damping
+        force, stiffness, damping = self._pair(self.model.particle_mass[i_p], offset,
+                                               v[i_p] - closest_velocity)
+        return weights, force, stiffness, damping
 
     @ti.func
     def _edge_edge(self, x, v, first, second):
-        """Edge ``first`` (its two particles) against edge ``second``: (active, s, u, force on
-        the first edge's closest point, blocks), with the four particles' mean mass."""
+        """Edge ``first`` (its two particles) against edge ``second``: (s, u, force on the first
+        edge's closest point, blocks), with the four particles' mean mass."""
         s, u, offset = edge_edge_offset(x, first, second, self.model.real)
         velocity_first = (1 - s) * v[first[0]] + s * v[first[1]]
         velocity_second = (1 - u) * v[second[0]] + u * v[second[1]]
         mass = ti.static(self.model.particle_mass)
         mean_mass = 0.25 * (mass[first[0]] + mass[first[1]] + mass[second[0]] + mass[second[1]])
-        active, force, stiffness, damping = self._pair(mean_mass, offset,
-                                                       velocity_first - velocity_second)
-        return active, s, u, force, stiffness, damping
+        force, stiffness, damping = self._pair(mean_mass, offset, velocity_first - velocity_second)
+        return s, u, force, stiffness, damping
 
     @ti.func
     def force(self, model, x, v, i_p, t):

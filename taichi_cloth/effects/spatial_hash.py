@@ -47,7 +47,6 @@ class BoxGrid:
 
     def __init__(self, count: int, real):
         self.count = count
-        self.real = real
         self.capacity = max(1, ENTRIES_PER_BOX * count)
         self.bucket_count = power_of_two_at_least(BUCKETS_PER_BOX * count)
         self.lower = ti.Vector.field(3, real, count)
