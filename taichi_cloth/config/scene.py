@@ -227,11 +227,11 @@ def scene_from_document(path: Path, raw: dict, overridden: list[str] = ()) -> Sc
     for name in scene.effects:
         if EFFECT_BY_NAME[name].needs_body and scene.body is None:
             raise ctx.error(f"effects.{name}", f"{name} needs a [body] section")
-    if scene.simulation.integrator == "implicit" and scene.simulation.arch != "cpu":
-        raise ctx.error("simulation.arch", "the implicit integrator runs on the CPU only: on "
-                                           "Vulkan its conjugate gradients break down at random "
-                                           "(a race not found yet); use arch = \"cpu\" or an "
-                                           "explicit integrator")
+    if scene.simulation.integrator == "implicit" and scene.simulation.arch in ("vulkan", "gpu"):
+        raise ctx.error("simulation.arch", "the implicit integrator runs on the CPU and CUDA only: "
+                                           "on Vulkan its conjugate gradients break down at random "
+                                           "(a race not found yet); use arch = \"cpu\" or "
+                                           "\"cuda\", or an explicit integrator")
     check_precision_range(ctx, scene)
     check_camera(ctx, scene.render)
     return scene
