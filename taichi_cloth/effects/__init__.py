@@ -10,9 +10,11 @@ from taichi_cloth.effects.drag import Drag
 from taichi_cloth.effects.gravity import Gravity
 from taichi_cloth.effects.ground import GroundContact
 from taichi_cloth.effects.self_collision import SelfCollision
+from taichi_cloth.effects.support import SupportContact
 from taichi_cloth.effects.wind import Wind
 
-EFFECTS = (Gravity, Damping, Bending, Drag, Wind, CapsuleContact, GroundContact, SelfCollision)
+EFFECTS = (Gravity, Damping, Bending, Drag, Wind, CapsuleContact, GroundContact, SupportContact,
+           SelfCollision)
 EFFECT_BY_NAME = {effect.name: effect for effect in EFFECTS}
 
 

@@ -21,9 +21,9 @@ import numpy as np
 import taichi as ti
 
 from taichi_cloth.effects.base import Effect, EffectContext
-from taichi_cloth.effects.penalty import (capsule_penetration_depths, closest_on_segment,
-                                          normal_force_magnitude, penalty_damping_block,
-                                          penalty_force)
+from taichi_cloth.effects.penalty import (PenaltySettings, capsule_penetration_depths,
+                                          closest_on_segment, normal_force_magnitude,
+                                          penalty_damping_block, penalty_force)
 from taichi_cloth.gather import incidence_lists
 from taichi_cloth.settings import setting
 from taichi_cloth.uploads import upload
@@ -32,12 +32,8 @@ MASK_BITS = 31  # capsules a particle's near-mask can hold (more: every sample t
 
 
 @dataclass(frozen=True)
-class CollisionSettings:
-    stiffness: float = setting(1e5, "float", low=0.0, low_inclusive=False,
-                               doc="penalty stiffness per unit particle mass, 1/s²")
-    damping: float = setting(0.1, "float", low=0.0, doc="normal damping ratio ζ")
+class CollisionSettings(PenaltySettings):
     friction: float = setting(0.3, "float", low=0.0, doc="Coulomb coefficient μ")
-    thickness: float = setting(0.005, "float", low=0.0, doc="contact margin around capsules, m")
     mode: str = setting("penalty", "str", choices=("penalty", "penalty+projection"))
     surface: bool = setting(True, "bool", doc="edge midpoints and triangle centroids feel "
                                               "contact too (module docstring)")

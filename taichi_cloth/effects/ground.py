@@ -6,19 +6,14 @@ import numpy as np
 import taichi as ti
 
 from taichi_cloth.effects.base import Effect
-from taichi_cloth.effects.penalty import (normal_force_magnitude, penalty_damping_block,
-                                          penalty_force)
+from taichi_cloth.effects.penalty import (PenaltySettings, normal_force_magnitude,
+                                          penalty_damping_block, penalty_force)
 from taichi_cloth.settings import setting
 
 
 @dataclass(frozen=True)
-class GroundSettings:
+class GroundSettings(PenaltySettings):
     height: float = setting(0.0, "float", doc="y of the ground plane, m")
-    stiffness: float = setting(1e5, "float", low=0.0, low_inclusive=False,
-                               doc="penalty stiffness per unit particle mass, 1/s²")
-    damping: float = setting(0.1, "float", low=0.0, doc="normal damping ratio ζ")
-    friction: float = setting(0.5, "float", low=0.0, doc="Coulomb coefficient μ")
-    thickness: float = setting(0.005, "float", low=0.0, doc="contact margin above the plane, m")
 
 
 @ti.data_oriented

@@ -18,8 +18,24 @@ resolution, ζ the damping ratio of that normal spring, μ the friction coeffici
 velocity of a capsule is interpolated along its axis from the endpoint velocities.
 """
 
+from dataclasses import dataclass
+
 import numpy as np
 import taichi as ti
+
+from taichi_cloth.settings import setting
+
+
+@dataclass(frozen=True)
+class PenaltySettings:
+    """The keys every penalty contact effect takes (k̂, ζ, μ and the margin; module docstring);
+    an effect's own settings extend them (and may change a default)."""
+
+    stiffness: float = setting(1e5, "float", low=0.0, low_inclusive=False,
+                               doc="penalty stiffness per unit particle mass, 1/s²")
+    damping: float = setting(0.1, "float", low=0.0, doc="normal damping ratio ζ")
+    friction: float = setting(0.5, "float", low=0.0, doc="Coulomb coefficient μ")
+    thickness: float = setting(0.005, "float", low=0.0, doc="contact margin off the surface, m")
 
 
 

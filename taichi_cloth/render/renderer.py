@@ -19,7 +19,8 @@ import taichi as ti
 
 from taichi_cloth.errors import InputError
 from taichi_cloth.config.scene import Scene
-from taichi_cloth.render.surfaces import BodySurface, ClothEdges, ClothSurface, GroundSurface
+from taichi_cloth.render.surfaces import (BodySurface, ClothEdges, ClothSurface, GroundSurface,
+                                          PlateSurface)
 from taichi_cloth.render.texture import load_texture, sample_texture, texture_path
 
 VULKAN_PACKAGES = "libvulkan1 mesa-vulkan-drivers"
@@ -103,6 +104,10 @@ class Renderer:
             self.ground.shade(key, lambda normals, points: illumination(
                 normals, points, self.lights, config.ambient), config.background)
 
+        support = scene.effects.get("support")
+        self.plate = None if support is None else PlateSurface(
+            support.height, support.radius, support.plate_thickness, support.centre)
+
         # last: nothing after it can fail unclosed
         self.window = open_window(width, height, visible, f"taichi_cloth: {scene.name}")
         self.canvas = self.window.get_canvas()
@@ -146,6 +151,8 @@ class Renderer:
                 self.ground.cast_shadows(self.body)
         if self.ground is not None:
             self._mesh(self.ground, two_sided=False)
+        if self.plate is not None:
+            self._mesh(self.plate, two_sided=False)
         self._mesh(self.cloth, two_sided=True)
         if wireframe:
             if self.edges is None:

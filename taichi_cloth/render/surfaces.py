@@ -343,3 +343,38 @@ class GroundSurface(Surface):
                                                            / (2 * SHADOW_AMBIENT_RADIUS ** 2))
                                    / (1 + h / SHADOW_AMBIENT_HEIGHT))
             self.colors[i] = self.unshadowed[i] * (1 - SHADOW_STRENGTH * occlusion)
+
+
+PLATE_SEGMENTS = 96  # vertices around the support plate's rim
+
+
+class PlateSurface(Surface):
+    """The support plate (``effects/support.py``): a flat-shaded cylinder of radius ``radius``
+    [m] from ``height − thickness`` to ``height`` about the vertical axis through
+    ``centre`` = (x, z) [m], grey as a prop; its top, side and bottom keep vertices of their own
+    so that each face has its own normal."""
+
+    def __init__(self, height: float, radius: float, thickness: float, centre):
+        azimuth = 2 * np.pi * np.arange(PLATE_SEGMENTS) / PLATE_SEGMENTS
+        rim = np.stack([np.cos(azimuth), np.zeros(PLATE_SEGMENTS), np.sin(azimuth)], axis=1)
+        axis = np.array([centre[0], 0.0, centre[1]])
+        up = np.array([0.0, 1.0, 0.0])
+        top, bottom = axis + height * up, axis + (height - thickness) * up
+        ring = np.arange(PLATE_SEGMENTS)
+        following = (ring + 1) % PLATE_SEGMENTS
+        points = np.concatenate([[top], top + radius * rim,  # the top: centre 0, rim 1..S
+                                 top + radius * rim, bottom + radius * rim,  # the side
+                                 [bottom], bottom + radius * rim])  # the bottom
+        normals = np.concatenate([np.tile(up, (PLATE_SEGMENTS + 1, 1)), rim, rim,
+                                  np.tile(-up, (PLATE_SEGMENTS + 1, 1))])
+        s = PLATE_SEGMENTS
+        triangles = np.concatenate([
+            np.stack([np.zeros(s, int), 1 + following, 1 + ring], axis=1),
+            np.stack([1 + s + ring, 1 + s + following, 1 + 2 * s + ring], axis=1),
+            np.stack([1 + s + following, 1 + 2 * s + following, 1 + 2 * s + ring], axis=1),
+            np.stack([np.full(s, 1 + 3 * s), 1 + 3 * s + 1 + ring, 1 + 3 * s + 1 + following],
+                     axis=1)])
+        super().__init__(len(points), triangles)
+        self.vertices.from_numpy(points.astype(np.float32))
+        self.normals.from_numpy(normals.astype(np.float32))
+        self.set_colors(np.broadcast_to(PROP_COLOR, (len(points), 3)))
