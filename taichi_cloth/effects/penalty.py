@@ -38,7 +38,6 @@ class PenaltySettings:
     thickness: float = setting(0.005, "float", low=0.0, doc="contact margin off the surface, m")
 
 
-
 def closest_points_numpy(x: np.ndarray, a: np.ndarray, b: np.ndarray):
     """For points x (N,3) and segments a, b (C,3): segment parameter s (N,C), closest points
     y (N,C,3) and distances |x − y| (N,C). A degenerate segment (a = b) gives s = 0."""
