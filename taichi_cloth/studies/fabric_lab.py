@@ -125,7 +125,7 @@ DRAPE_COLUMNS = [("material", "material", "s"), ("spacing_m", "spacing [m]", ".4
                  ("drape_coefficient", "DC", ".3f"),
                  ("drape_coefficient_spread", "DC spread", ".3f"), ("nodes", "nodes", "d"),
                  ("residual", "residual", ".1e")]
-PICTURE_KEYS = ("positions", "triangles", "columns", "hem_angle", "hem_radius")
+PICTURE_KEYS = ("positions", "triangles", "columns", "hem_angle", "hem_radius", "support")
 
 
 def fabric_test_command(test: str, materials: str, resolutions: str, overrides: list[str],

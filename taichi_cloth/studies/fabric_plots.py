@@ -6,6 +6,7 @@ import math
 from pathlib import Path
 
 from matplotlib.collections import PolyCollection
+from matplotlib.patches import Rectangle
 from matplotlib.figure import Figure
 
 from taichi_cloth.studies.cantilever import TARGET_ANGLE
@@ -40,7 +41,8 @@ def plot_cantilever(row: dict, target: Path) -> None:
 
 def plot_drape(row: dict, target: Path) -> None:
     """The settled specimen from above (its triangles projected: the shadow) with the support
-    disc and the flat specimen's circle, and from the side; lengths in cm."""
+    disc and the flat specimen's circle, and from the side with the support plate's outline;
+    lengths in cm."""
     positions, triangles = row["positions"] * 100.0, row["triangles"]
     figure = Figure(figsize=(9.0, 4.2))
     top, side = figure.add_subplot(1, 2, 1), figure.add_subplot(1, 2, 2)
@@ -62,6 +64,10 @@ def plot_drape(row: dict, target: Path) -> None:
     top.legend(fontsize=7, loc="upper right")
     side.add_collection(PolyCollection(positions[triangles][:, :, [0, 1]], facecolors="0.45",
                                        edgecolors="0.2", linewidths=0.1))
+    if row["support"] is not None:
+        top_face, thickness, radius = (100.0 * value for value in row["support"])
+        side.add_patch(Rectangle((-radius, top_face - thickness), 2 * radius, thickness,
+                                 fill=False, edgecolor="tab:red", linewidth=1))
     height = positions[:, 1].max()
     side.set_xlim(-16, 16)
     side.set_ylim(height - 16, height + 2)
