@@ -85,19 +85,20 @@ def test_node_count_counts_the_bulges_of_the_hem():
 
 @pytest.fixture(scope="module")
 def drapes():
-    """Silk and denim at the coarse spacing (one bending length), and denim at 0.7 of it."""
+    """Wool and denim at the coarse spacing (one bending length), and denim at 0.7 of it (silk's
+    coarse specimen buckles up on the plate and takes ~140 Newton steps: docs/fabric-tests.md)."""
     return {(material, fraction): drape((f"cloth.material={material}",), fraction, specimens=1)
-            for material, fraction in (("silk", 1.0), ("denim", 1.0), ("denim", 0.7))}
+            for material, fraction in (("wool", 1.0), ("denim", 1.0), ("denim", 0.7))}
 
 
 def test_drape_coefficients_order_the_fabrics_and_stay_under_refinement(drapes):
-    silk, denim = drapes[("silk", 1.0)], drapes[("denim", 1.0)]
+    wool, denim = drapes[("wool", 1.0)], drapes[("denim", 1.0)]
     for row in drapes.values():
         assert 0.0 < row["drape_coefficient"] < 1.0
         assert row["nodes"] >= 3
         assert row["residual"] < 1e-3
-    assert silk["bending_length_m"] < denim["bending_length_m"]
-    assert silk["drape_coefficient"] < denim["drape_coefficient"]
+    assert wool["bending_length_m"] < denim["bending_length_m"]
+    assert wool["drape_coefficient"] < denim["drape_coefficient"]
     assert abs(drapes[("denim", 0.7)]["drape_coefficient"] - denim["drape_coefficient"]) < 0.05
 
 

@@ -19,9 +19,12 @@ SETTINGS = SupportSettings(height=0.5, radius=0.09, centre=(0.02, -0.01), plate_
 
 def brute_force_signed_distance(points: np.ndarray) -> np.ndarray:
     """Distance from each point to the plate's outline in its (r, y) half-plane, sampled every
-    2 µm (top, side and bottom), negative inside the rectangle."""
+    2 µm (top, side and bottom; every 1 mm on the faces more than 5 mm inside the rim, whose
+    nearest points for the far test points are sample points themselves: the axis), negative
+    inside the rectangle."""
     top, bottom, rim = SETTINGS.height, SETTINGS.height - SETTINGS.plate_thickness, SETTINGS.radius
-    radii = np.linspace(0.0, rim, int(rim / 2e-6) + 1)
+    radii = np.concatenate([np.arange(0.0, rim - 0.005, 1e-3),
+                            np.linspace(rim - 0.005, rim, int(0.005 / 2e-6) + 1)])
     heights = np.linspace(bottom, top, int(SETTINGS.plate_thickness / 2e-6) + 1)
     outline = np.concatenate([np.stack([radii, np.full_like(radii, top)], 1),
                               np.stack([radii, np.full_like(radii, bottom)], 1),
