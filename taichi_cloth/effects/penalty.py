@@ -1,4 +1,5 @@
-"""Penalty contact with friction, shared by the body's capsules (``collision``) and the ground.
+"""Penalty contact with friction, shared by the body's capsules (``collision``), the ground and the
+support plate.
 
 Seed §2.6: bones are capsules (a segment a–b and a radius r), particles are points, and a point
 inside a capsule is pushed out by a spring on its penetration (the penalty method, §2.6.2).
