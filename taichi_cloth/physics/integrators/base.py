@@ -46,6 +46,7 @@ class Integrator:
     uses_jacobian = False  # whether it asks the effects for their Jacobian blocks
     substep_batch = 2  # parallel substeps per kernel launch (each unrolled copy adds compile time)
     serial_particle_limit = SERIAL_PARTICLE_LIMIT  # cloth this small runs on one thread
+    substeps_write_states = True  # False where substeps keep the state in packed lanes
 
     def __init__(self, forces: Forces, control, post_step=None):
         """control: the prescribed motion (``physics.control.Control``: where pinned particles
@@ -129,21 +130,30 @@ class Integrator:
     @ti.kernel
     def _advance_serial(self, a: ti.template(), b: ti.template(), t: ti.f64, dt: ti.f64,
                         count: ti.i32, start_in_b: ti.i32):
-        """Substeps from a (start_in_b = 0) or from b (1), alternating."""
-        if start_in_b == 0:  # loops under a branch run serially
-            self.begin_launch(a)
-        else:
-            self.begin_launch(b)
+        """Substeps from a (start_in_b = 0) or from b (1). Each substep goes from a into b and
+        (where substeps write the states) b is copied back into a, so the kernel inlines one
+        substep, not one per direction (its compile takes half as long: a frame kernel with
+        self-collision compiled for ~47 s with two); afterwards a and b both hold the newest
+        state where substeps write them, else ``end_launch`` writes it, as before."""
+        if start_in_b == 1:  # loops under a branch run serially
+            self._copy_state(b, a)
+        self.begin_launch(a)
         ti.loop_config(serialize=True)
         for k in range(count):
-            if (k + start_in_b) % 2 == 0:
-                self._substep_and_post(a, b, t + k * dt, dt, k % 2)
-            else:
-                self._substep_and_post(b, a, t + k * dt, dt, k % 2)
+            self._substep_and_post(a, b, t + k * dt, dt, k % 2)
+            if ti.static(self.substeps_write_states):
+                self._copy_state(b, a)
         if (count + start_in_b) % 2 == 0:
             self.end_launch(a, count % 2)
         else:
             self.end_launch(b, count % 2)
+
+    @ti.func
+    def _copy_state(self, source, target):
+        """target's positions and velocities := source's (on this thread)."""
+        for i_p in range(self.model.particle_count):
+            target.x[i_p] = source.x[i_p]
+            target.v[i_p] = source.v[i_p]
 
     @ti.func
     def begin_launch(self, state):

@@ -83,6 +83,7 @@ class EulerStep(Integrator):
         # accelerations, and no projection (which moves particles in the unpacked state).
         self.steps_in_lanes = self.has_packed \
             and forces.uniform_acceleration is not None and not self.has_post_step
+        self.substeps_write_states = not self.steps_in_lanes
         if self.steps_in_lanes:
             self.group_step = group_pass_function(
                 self.model, self.packed.packed_x, self.packed.packed_v,
