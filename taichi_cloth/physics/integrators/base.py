@@ -13,8 +13,9 @@ particle updates) and runs many per launch, in one of two ways:
   SIGTERM are honoured between launches), a serial loop over substeps around serial particle
   loops, on one thread.
 
-Substep k reads state ``a`` and writes ``b`` when k is even, the reverse when odd; it is also
-told ``k % 2``, the packed copy (``PackedGrid.pack``) that holds its input when the integrator carries
+In a parallel launch substep k reads state ``a`` and writes ``b`` when k is even, the reverse
+when odd; a serial launch inlines its substep once, from ``a`` into ``b``, and copies ``b`` back
+into ``a`` after each (``_advance_serial``). Each substep is also told ``k % 2``, the packed copy (``PackedGrid.pack``) that holds its input when the integrator carries
 a packed state from substep to substep, which ``begin_launch`` fills at the start of a launch
 (and ``end_launch`` may unpack at its end).
 An optional ``post_step`` (the contact projection) runs after each substep.
