@@ -22,8 +22,7 @@ import taichi as ti
 
 from taichi_cloth.effects.base import Effect, EffectContext
 from taichi_cloth.effects.penalty import (PenaltySettings, capsule_penetration_depths,
-                                          closest_on_segment, normal_force_magnitude,
-                                          penalty_damping_block, penalty_force)
+                                          closest_on_segment, penalty_blocks, penalty_force)
 from taichi_cloth.gather import incidence_lists
 from taichi_cloth.settings import setting
 from taichi_cloth.uploads import upload
@@ -281,24 +280,22 @@ class CapsuleContact(Effect):
         real = self.model.real
         stiffness_block = ti.Matrix.zero(real, 3, 3)
         damping_block = ti.Matrix.zero(real, 3, 3)
-        identity = ti.Matrix.identity(real, 3)
         for i_c in range(self.capsule_count):
             if (mask >> i_c) & 1 and self.near(i_c, position):
                 depth, normal, distance, s, axis, surface_velocity = self.probe(i_c, position)
-                relative_velocity = velocity - surface_velocity
-                if depth > 0 and distance > 0 and normal_force_magnitude(
-                        mass, depth, relative_velocity.dot(normal), real(self.stiffness),
-                        real(self.damping_ratio)) > 0:
-                    outer = normal.outer_product(normal)
-                    stiffness_block -= mass * real(self.stiffness) * outer
-                    damping_block += penalty_damping_block(
-                        mass, depth, normal, relative_velocity, real(self.stiffness),
-                        real(self.damping_ratio), real(self.friction), real)
+                if distance > 0:
+                    curvature = ti.Matrix.zero(real, 3, 3)  # ∇²|p − y| = P/|p − y|
                     if ti.static(not definite):
-                        tangent = identity - outer
+                        curvature = ti.Matrix.identity(real, 3) - normal.outer_product(normal)
                         if 0 < s < 1:
-                            tangent -= axis.outer_product(axis)
-                        stiffness_block += mass * real(self.stiffness) * depth / distance * tangent
+                            curvature -= axis.outer_product(axis)
+                        curvature /= distance
+                    capsule_stiffness, capsule_damping = penalty_blocks(
+                        mass, depth, normal, velocity - surface_velocity, curvature,
+                        real(self.stiffness), real(self.damping_ratio), real(self.friction),
+                        real, definite)
+                    stiffness_block += capsule_stiffness
+                    damping_block += capsule_damping
         return stiffness_block, damping_block
 
     @ti.func

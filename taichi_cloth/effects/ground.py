@@ -6,8 +6,7 @@ import numpy as np
 import taichi as ti
 
 from taichi_cloth.effects.base import Effect
-from taichi_cloth.effects.penalty import (PenaltySettings, normal_force_magnitude,
-                                          penalty_damping_block, penalty_force)
+from taichi_cloth.effects.penalty import PenaltySettings, penalty_blocks, penalty_force
 from taichi_cloth.settings import setting
 
 
@@ -49,21 +48,13 @@ class GroundContact(Effect):
 
     @ti.func
     def local_jacobian(self, model, x, v, i_p, t, definite: ti.template()):
-        """(∂f/∂x, ∂f/∂v) of the penalty: −m·k̂·e_y·e_yᵀ (exact for a plane, so ``definite``
-        changes nothing) and ``penalty_damping_block``; nothing while the normal force is
-        clamped to 0."""
+        """(∂f/∂x, ∂f/∂v) of the penalty (``penalty_blocks``): −m·k̂·e_y·e_yᵀ, exact for a plane
+        (no curvature), and the damping block."""
         real = model.real
-        stiffness_block = ti.Matrix.zero(real, 3, 3)
-        damping_block = ti.Matrix.zero(real, 3, 3)
-        depth = real(self.surface_height) - x[i_p][1]
-        mass = model.particle_mass[i_p]
-        if depth > 0 and normal_force_magnitude(mass, depth, v[i_p][1], real(self.stiffness),
-                                                real(self.damping_ratio)) > 0:
-            stiffness_block[1, 1] = -mass * real(self.stiffness)
-            damping_block = penalty_damping_block(
-                mass, depth, ti.Vector([0.0, 1.0, 0.0], dt=real), v[i_p], real(self.stiffness),
-                real(self.damping_ratio), real(self.friction), real)
-        return stiffness_block, damping_block
+        return penalty_blocks(model.particle_mass[i_p], real(self.surface_height) - x[i_p][1],
+                              ti.Vector([0.0, 1.0, 0.0], dt=real), v[i_p],
+                              ti.Matrix.zero(real, 3, 3), real(self.stiffness),
+                              real(self.damping_ratio), real(self.friction), real, True)
 
     def stability_modes(self) -> list[tuple[float, float]]:
         return [(self.stiffness, self.damping_ratio)]

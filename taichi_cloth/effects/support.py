@@ -28,8 +28,7 @@ import numpy as np
 import taichi as ti
 
 from taichi_cloth.effects.base import Effect
-from taichi_cloth.effects.penalty import (PenaltySettings, normal_force_magnitude,
-                                          penalty_damping_block, penalty_force)
+from taichi_cloth.effects.penalty import PenaltySettings, penalty_blocks, penalty_force
 from taichi_cloth.settings import setting
 
 
@@ -120,25 +119,13 @@ class SupportContact(Effect):
 
     @ti.func
     def local_jacobian(self, model, x, v, i_p, t, definite: ti.template()):
-        """(∂f/∂x, ∂f/∂v): m·k̂·(−n·nᵀ + depth·∇²s) (the curvature term dropped when
-        ``definite``) and ``penalty_damping_block``; nothing while the normal force is clamped
-        to 0."""
+        """(∂f/∂x, ∂f/∂v) of the penalty (``penalty_blocks``): m·k̂·(−n·nᵀ + depth·∇²s), the
+        curvature term dropped when ``definite``, and the damping block."""
         real = model.real
-        stiffness_block = ti.Matrix.zero(real, 3, 3)
-        damping_block = ti.Matrix.zero(real, 3, 3)
         s, n, curvature = self.probe(x[i_p], real)
-        depth = real(self.margin) - s
-        mass = model.particle_mass[i_p]
-        stiffness = real(self.stiffness)
-        if depth > 0 and normal_force_magnitude(mass, depth, v[i_p].dot(n), stiffness,
-                                                real(self.damping_ratio)) > 0:
-            stiffness_block = -mass * stiffness * n.outer_product(n)
-            if ti.static(not definite):
-                stiffness_block += mass * stiffness * depth * curvature
-            damping_block = penalty_damping_block(mass, depth, n, v[i_p], stiffness,
-                                                  real(self.damping_ratio), real(self.friction),
-                                                  real)
-        return stiffness_block, damping_block
+        return penalty_blocks(model.particle_mass[i_p], real(self.margin) - s, n, v[i_p],
+                              curvature, real(self.stiffness), real(self.damping_ratio),
+                              real(self.friction), real, definite)
 
     def stability_modes(self) -> list[tuple[float, float]]:
         return [(self.stiffness, self.damping_ratio)]
