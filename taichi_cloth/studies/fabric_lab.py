@@ -30,7 +30,7 @@ from taichi_cloth.physics.simulation import Simulation
 LAB_SCENES = SCENES_DIR / "lab"
 MOVE_TOLERANCE = 1e-9  # m per step: at rest
 RESIDUAL_TOLERANCE = 1e-4  # unbalanced force over the particle's weight
-MAX_SETTLE_STEPS = 1000  # a sliding mode on the drape plate's edge converges slowly (docs/fabric-tests.md)
+MAX_SETTLE_STEPS = 1000  # denim's drape slides over the plate's edge: ~500 (docs/fabric-tests.md)
 
 
 @dataclass
