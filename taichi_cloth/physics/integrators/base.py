@@ -15,9 +15,10 @@ particle updates) and runs many per launch, in one of two ways:
 
 In a parallel launch substep k reads state ``a`` and writes ``b`` when k is even, the reverse
 when odd; a serial launch inlines its substep once, from ``a`` into ``b``, and copies ``b`` back
-into ``a`` after each (``_advance_serial``). Each substep is also told ``k % 2``, the packed copy (``PackedGrid.pack``) that holds its input when the integrator carries
-a packed state from substep to substep, which ``begin_launch`` fills at the start of a launch
-(and ``end_launch`` may unpack at its end).
+into ``a`` after each (``_advance_serial``). Each substep is also told ``k % 2``, the packed
+copy (``PackedGrid.pack``) that holds its input when the integrator carries a packed state from
+substep to substep, which ``begin_launch`` fills at the start of a launch (and ``end_launch`` may
+unpack at its end).
 An optional ``post_step`` (the contact projection) runs after each substep.
 """
 
@@ -135,7 +136,8 @@ class Integrator:
         (where substeps write the states) b is copied back into a, so the kernel inlines one
         substep, not one per direction (its compile takes half as long: a frame kernel with
         self-collision compiled for ~47 s with two); afterwards a and b both hold the newest
-        state where substeps write them, else ``end_launch`` writes it, as before."""
+        state where substeps write them, else ``end_launch`` unpacks it into the state that
+        the parity of ``count + start_in_b`` names, the one the caller reads."""
         if start_in_b == 1:  # loops under a branch run serially
             self._copy_state(b, a)
         self.begin_launch(a)
