@@ -13,7 +13,7 @@ from systems import assemble, energy_gradient
 
 from taichi_cloth.cli import main
 from taichi_cloth.cloth.garment import Garment
-from taichi_cloth.effects.self_collision import SelfCollision, SelfCollisionSettings
+from taichi_cloth.effects.self_collision import SEPARATION, SelfCollision, SelfCollisionSettings
 from taichi_cloth.physics.model import Model
 
 THICKNESS, K_HAT = 0.01, 1e4  # m, 1/s²
@@ -35,20 +35,31 @@ def two_triangles(positions: np.ndarray) -> Garment:
 @functools.cache
 def two_triangle_physics():
     """The two triangles' model with only the effect, built once (every test moves the same
-    six particles): (model, forces, state, output field)."""
+    six particles): (forces, state, output field, the effect)."""
     rest = np.array([[-1.0, 0, -1], [1, 0, -1], [0, 0, 1], [0, 1, 0], [1, 1, 0], [0, 1, 1]])
     model = Model(two_triangles(rest), "f64")
     physics = assemble(model, [(SelfCollision, SETTINGS)])
-    return model, physics.forces, model.state(), ti.Vector.field(3, ti.f64, 6)
+    return physics.forces, model.state(), ti.Vector.field(3, ti.f64, 6), physics.effects[0]
 
 
-def self_collision_force(positions: np.ndarray) -> np.ndarray:
-    """The effect's force on every particle at rest at ``positions`` (springs of zero
-    stiffness: the mesh needs edges, the test no other force)."""
-    model, forces, state, out = two_triangle_physics()
-    state.x.from_numpy(positions)
+@ti.kernel
+def finish_step(effect: ti.template(), state: ti.template()):
+    """What an integrator does after each step: the effect's post step (its side records)."""
+    effect.apply(state, 0.0)
+
+
+def self_collision_force(*steps: np.ndarray) -> np.ndarray:
+    """The effect's force on every particle at rest at the last positions of ``steps``, each
+    earlier one a finished step (springs of zero stiffness: the mesh needs edges, the test no
+    other force); a fresh start: no side records."""
+    forces, state, out, effect = two_triangle_physics()
+    effect.forget_history()
     state.v.fill(0.0)
-    forces.evaluate(state.x, state.v, 0.0, out)
+    for k, positions in enumerate(steps):
+        if k:
+            finish_step(effect, state)
+        state.x.from_numpy(positions)
+        forces.evaluate(state.x, state.v, 0.0, out)
     return out.to_numpy()
 
 
@@ -93,6 +104,131 @@ def test_far_apart_nothing_acts():
     positions = np.array([[-1.0, 0, -1], [1, 0, -1], [0, 0, 1],
                           [0.1, 0.02, 0.2], [0.1, 1.0, 0.2], [0.6, 1.0, 0.4]])
     assert np.all(self_collision_force(positions) == 0.0)
+
+
+def vertex_over_the_triangle(height: float, z: float = 0.2) -> np.ndarray:
+    """Vertex 3 ``height`` [m] above the plane y = 0 of triangle (0, 1, 2) at (0.1, ·, z):
+    inside the triangle for z > −1, outside beyond its edge z = −1."""
+    return np.array([[-1.0, 0, -1], [1, 0, -1], [0, 0, 1],
+                     [0.1, height, z], [0.1, 1.0, 0.2], [0.6, 1.0, 0.4]])
+
+
+def test_a_vertex_that_crossed_the_face_within_a_step_is_pushed_back_by_minus_the_gradient():
+    """Vertex 3 at 4 mm above the triangle after a step and 3 mm below it at the next: it went
+    through the face, and the penalty of the side it belongs on, ½·m·k̂·(thickness − h)² with h
+    its height above, pushes it back up through it with m·k̂·(thickness + 3 mm). Without that
+    history (a fresh start 3 mm below) it is pushed on down."""
+    above, below = vertex_over_the_triangle(0.004), vertex_over_the_triangle(-0.003)
+
+    def energy(x):
+        normal = np.cross(x[1] - x[0], x[2] - x[0])
+        normal /= np.linalg.norm(normal)
+        side = np.sign((above[3] - above[0]) @ normal)
+        return penalty(side * ((x[3] - x[0]) @ normal), MASS[3])
+
+    force = self_collision_force(above, below)
+    np.testing.assert_allclose(force, -energy_gradient(energy, below, 1e-7), atol=1e-6)
+    assert force[3, 1] == pytest.approx(MASS[3] * K_HAT * 0.013, rel=1e-9)
+    np.testing.assert_allclose(force.sum(axis=0), 0.0, atol=1e-12)
+    assert self_collision_force(below)[3, 1] == pytest.approx(-MASS[3] * K_HAT * 0.007, rel=1e-9)
+
+
+def test_a_vertex_that_goes_round_the_edge_changes_side_without_crossing():
+    """Vertex 3 passes under the triangle's edge z = −1 from 4 mm above to 4 mm below, outside
+    the face, then moves in under it: no crossing, it is pushed away, down; the record says
+    nothing crossed."""
+    steps = [vertex_over_the_triangle(0.004, -1.003), vertex_over_the_triangle(-0.004, -1.003),
+             vertex_over_the_triangle(-0.004, -0.99)]
+    assert self_collision_force(*steps)[3, 1] == pytest.approx(-MASS[3] * K_HAT * 0.006,
+                                                               rel=1e-9)
+    _, state, _, effect = two_triangle_physics()
+    finish_step(effect, state)
+    assert effect.frame_metrics(steps[-1])["self_collision_crossed"] == 0
+
+
+def crossing_edges(height: float) -> np.ndarray:
+    """Edge 3–4 along z at ``height`` [m] over edge 0–1 along x at y = 0, the triangles turned
+    away from each other: only the edge pair is near."""
+    return np.array([[-1.0, 0, 0], [1, 0, 0], [0, -1, 0],
+                     [0, height, -1], [0.2, height, 1], [0, 1, 0]])
+
+
+def test_edges_that_crossed_within_a_step_are_pushed_back():
+    """Edge 3–4 passes from 5 mm above edge 0–1 to 3 mm below it in one step: pushed back up
+    with the mean mass times k̂·(thickness + 3 mm)."""
+    mean_mass = MASS[[0, 1, 3, 4]].mean()
+    force = self_collision_force(crossing_edges(0.005), crossing_edges(-0.003))
+    assert force[[3, 4], 1].sum() == pytest.approx(mean_mass * K_HAT * 0.013, rel=1e-6)
+
+
+@pytest.mark.parametrize("before, after, kind", [
+    (vertex_over_the_triangle(0.004), vertex_over_the_triangle(-0.002), "vertex"),
+    (crossing_edges(0.005), crossing_edges(-0.002), "edges")])
+def test_a_step_that_crosses_ends_with_the_pair_a_thickness_apart_on_its_side(before, after,
+                                                                            kind):
+    """A vertex through a face, and an edge through an edge, 2 mm deep within one step, particle 3
+    moving down at 1 m/s: the step's end (the post step) moves the pair's particles back until
+    it is ``SEPARATION`` of the thickness apart (to first order) on the side it came from,
+    keeping the momentum, and takes the approach out of the velocities; the record says it
+    has not crossed, and the pair is counted once as put back."""
+    forces, state, out, effect = two_triangle_physics()
+    self_collision_force(before)
+    finish_step(effect, state)
+    separations = effect.frame_metrics(before)["self_collision_separations"]
+    state.x.from_numpy(after)
+    velocity = np.zeros((6, 3))
+    velocity[3, 1] = -1.0
+    state.v.from_numpy(velocity)
+    finish_step(effect, state)
+    x, v = state.x.to_numpy(), state.v.to_numpy()
+    if kind == "vertex":
+        distance = closest_distance_point_triangle(x[3], x[0], x[1], x[2])
+    else:
+        distance = closest_distance_segments(x[3], x[4], x[0], x[1])
+    assert distance == pytest.approx(SEPARATION * THICKNESS, rel=1e-3)
+    assert x[3, 1] > x[0, 1] and x[0, 1] < 0  # particle 3 back above, the other side pushed down
+    np.testing.assert_allclose(MASS @ (x - after), 0.0, atol=1e-12)
+    np.testing.assert_allclose(MASS @ v, MASS @ velocity, atol=1e-12)
+    assert -1.0 < v[3, 1] and v[0, 1] < 0  # the approach shared out
+    metrics = effect.frame_metrics(x)
+    assert metrics["self_collision_crossed"] == 0
+    assert metrics["self_collision_separations"] == separations + 1
+
+
+def test_a_vertex_that_comes_through_the_face_from_beyond_the_reach_in_one_step_is_put_back():
+    """Vertex 3 three centimetres above the triangle (beyond the list's reach) after a step and
+    3 mm below it after the next, with no force evaluation near it: the step's end lists the
+    pair, takes its side from where the last step ended, and puts the vertex back above."""
+    forces, state, out, effect = two_triangle_physics()
+    self_collision_force(vertex_over_the_triangle(0.03))
+    finish_step(effect, state)
+    state.x.from_numpy(vertex_over_the_triangle(-0.003))
+    finish_step(effect, state)
+    x = state.x.to_numpy()
+    assert x[3, 1] > x[0, 1] and effect.frame_metrics(x)["self_collision_crossed"] == 0
+
+
+def test_a_redone_frame_gets_back_the_records_of_its_start():
+    """Records kept at a frame's start with vertex 3 above the face (``back_up``); the frame
+    takes it round the triangle's edge to below the face (no crossing: it is pushed on down
+    there), then is rolled back: the side of the start is what counts again, so the vertex
+    3 mm below is pushed back up."""
+    forces, state, out, effect = two_triangle_physics()
+    below = vertex_over_the_triangle(-0.003)
+    self_collision_force(vertex_over_the_triangle(0.004))
+    finish_step(effect, state)
+    effect.back_up()
+    for positions in (vertex_over_the_triangle(0.004, -1.003),
+                      vertex_over_the_triangle(-0.004, -1.003), below):
+        state.x.from_numpy(positions)
+        forces.evaluate(state.x, state.v, 0.0, out)
+        finish_step(effect, state)
+    forces.evaluate(state.x, state.v, 0.0, out)
+    assert out.to_numpy()[3, 1] == pytest.approx(-MASS[3] * K_HAT * 0.007, rel=1e-9)
+    effect.roll_back()
+    state.x.from_numpy(below)
+    forces.evaluate(state.x, state.v, 0.0, out)
+    assert out.to_numpy()[3, 1] == pytest.approx(MASS[3] * K_HAT * 0.013, rel=1e-9)
 
 
 def test_thickness_of_half_an_edge_or_more_is_one_line_exit_2(capsys):

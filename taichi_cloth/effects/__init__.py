@@ -2,6 +2,8 @@
 effect declares). ``EFFECTS`` is the one place they are registered: its order is the order in
 which forces are summed and effects are listed in ``stats.json``."""
 
+import taichi as ti
+
 from taichi_cloth.effects.base import Effect, EffectContext
 from taichi_cloth.effects.bending import Bending
 from taichi_cloth.effects.collision import CapsuleContact
@@ -30,3 +32,23 @@ def build_effects(declared: dict, context: EffectContext) -> list[Effect]:
     """The effect objects of ``declared`` (``Scene.effects``: name → settings, in ``EFFECTS``
     order)."""
     return [EFFECT_BY_NAME[name](settings, context) for name, settings in declared.items()]
+
+
+@ti.data_oriented
+class PostSteps:
+    """Several effects' post steps as one (``Integrator``'s ``post_step``), applied in the
+    effects' order: a contact projection before self-collision's side records."""
+
+    def __init__(self, post_steps: list):
+        self.post_steps = tuple(post_steps)
+
+    @ti.func
+    def apply(self, state, t):
+        for k in ti.static(range(len(self.post_steps))):
+            self.post_steps[k].apply(state, t)
+
+
+def post_step_of(effects: list[Effect]):
+    """The effects' post steps as one object for the integrator, or None when none has one."""
+    post_steps = [effect.post_step for effect in effects if effect.post_step is not None]
+    return PostSteps(post_steps) if post_steps else None

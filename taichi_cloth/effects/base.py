@@ -31,7 +31,11 @@ Genesis' ``force_fields.py``). What an effect declares:
   per-frame values for ``stats.json``, by name): its metrics.
 - ``upload()``: fill its fields once every effect has allocated its own (one SNode tree).
 - ``post_step``: an object with a ``@ti.func apply(state, t)`` to run after every substep (the
-  contact projection), or None.
+  contact projection; self-collision's side records), or None.
+- ``back_up()``, ``roll_back()`` and ``forget_history()``: what it carries from step to step
+  besides the state (self-collision's side records), kept at the start of a frame, put back
+  when the frame is redone, and dropped when the positions are set from outside; nothing by
+  default.
 
 Every value an effect reads that is fixed for the run is baked in at compile time, as
 ``model.real(value)`` so that it keeps the model's precision; the time t is a kernel argument.
@@ -73,6 +77,15 @@ class Effect:
 
     def __init__(self, settings, context: EffectContext):
         self.settings = settings
+
+    def back_up(self) -> None:
+        """Keep what the effect carries from step to step (module docstring): nothing here."""
+
+    def roll_back(self) -> None:
+        """Put back what ``back_up`` kept: nothing here."""
+
+    def forget_history(self) -> None:
+        """Drop what the effect carries from step to step: nothing here."""
 
     @staticmethod
     def model_options(settings) -> dict:

@@ -20,12 +20,16 @@ parallel, each into its own row of finds (up to ``FOUND_PER_ITEM``), and one thr
 finds in particle order, then edge order (up to ``PAIRS_PER_ITEM`` per particle and edge;
 ``overflow`` counts any dropped): the same list whatever the threads did. Every particle gets
 the CSR list of its (pair, corner) entries as 4·pair + corner, in pair order.
+
+Each find keeps its pair's side record beside it (``pair_records.PairRecords``, mixed in).
 """
 
 import numpy as np
 import taichi as ti
 
-from taichi_cloth.effects.proximity import edge_edge_offset, vertex_triangle_offset
+from taichi_cloth.effects.pair_records import PairRecords
+from taichi_cloth.effects.proximity import (EDGE_EDGE, VERTEX_TRIANGLE, edge_edge_offset,
+                                            vertex_triangle_offset)
 from taichi_cloth.effects.spatial_hash import BoxGrid
 from taichi_cloth.uploads import upload
 
@@ -35,11 +39,10 @@ from taichi_cloth.uploads import upload
 # a third layer adds about half as many. More count as overflow, which the run reports.
 PAIRS_PER_ITEM = 24  # the list's capacity per particle and edge
 FOUND_PER_ITEM = 48  # the pairs one particle's or edge's walk may find
-VERTEX_TRIANGLE, EDGE_EDGE = 0, 1  # kinds of pairs
 
 
 @ti.data_oriented
-class CandidatePairs:
+class CandidatePairs(PairRecords):
     """The vertex–triangle and edge–edge pairs of a model's cloth within ``reach`` [m], kept
     while the cloth deforms by less than half of ``padding`` [m] (module docstring)."""
 
@@ -68,6 +71,8 @@ class CandidatePairs:
         # each walk's finds: a particle's triangles, then an edge's edges of higher index
         self.found = ti.field(ti.i32, (particles + self.edge_count, FOUND_PER_ITEM))
         self.found_count = ti.field(ti.i32, particles + self.edge_count)
+        self.pair_slot = ti.field(ti.i32, self.capacity)  # its find: row·FOUND_PER_ITEM + place
+        self.allocate_records()
         self.entry_start = ti.field(ti.i32, particles + 1)
         self.entry_fill = ti.field(ti.i32, particles)
         self.entry = ti.field(ti.i32, 4 * self.capacity)
@@ -166,36 +171,45 @@ class CandidatePairs:
         return total / ti.max(grid.count, 1)
 
     @ti.func
-    def _find(self, owner, other):
-        """Item ``other`` into walk ``owner``'s row of ``found`` (counted as overflow when full)."""
+    def _find(self, owner, other, record):
+        """Item ``other`` with its side ``record`` into walk ``owner``'s row of ``found`` (counted
+        as overflow when full)."""
         n = self.found_count[owner]
         if n < FOUND_PER_ITEM:
             self.found[owner, n] = other
+            self.found_record[owner, n] = record
             self.found_count[owner] = n + 1
         else:
             ti.atomic_add(self.overflow[None], 1)
 
     @ti.func
+    def _pair_of(self, owner, other):
+        """(kind, its four particles) of the pair that walk ``owner`` found as item ``other``:
+        a particle and a triangle, or an edge and an edge."""
+        particles = self.model.particle_count
+        kind, ids = VERTEX_TRIANGLE, ti.Vector([0, 0, 0, 0])
+        if owner < particles:
+            corners = self.corners[other]
+            ids = ti.Vector([owner, corners[0], corners[1], corners[2]])
+        else:
+            ends, other_ends = self.ends[owner - particles], self.ends[other]
+            kind = EDGE_EDGE
+            ids = ti.Vector([ends[0], ends[1], other_ends[0], other_ends[1]])
+        return kind, ids
+
+    @ti.func
     def _gather_found(self):
         """The list: every particle's finds, then every edge's, as pairs of four particles
         (counted as overflow past the list's capacity)."""
-        particles = self.model.particle_count
         self.pair_count[None] = 0
-        for owner in range(particles + self.edge_count):
+        for owner in range(self.model.particle_count + self.edge_count):
             for n in range(self.found_count[owner]):
-                other = self.found[owner, n]
-                kind, ids = VERTEX_TRIANGLE, ti.Vector([0, 0, 0, 0])
-                if owner < particles:
-                    corners = self.corners[other]
-                    ids = ti.Vector([owner, corners[0], corners[1], corners[2]])
-                else:
-                    ends, other_ends = self.ends[owner - particles], self.ends[other]
-                    kind = EDGE_EDGE
-                    ids = ti.Vector([ends[0], ends[1], other_ends[0], other_ends[1]])
+                kind, ids = self._pair_of(owner, self.found[owner, n])
                 k = self.pair_count[None]
                 if k < self.capacity:
                     self.pair_kind[k] = kind
                     self.pair_particles[k] = ids
+                    self.pair_slot[k] = owner * FOUND_PER_ITEM + n
                     self.pair_count[None] = k + 1
                 else:
                     self.overflow[None] += 1
@@ -203,9 +217,9 @@ class CandidatePairs:
     @ti.func
     def _list_vertex_triangle(self, x, i_p):
         """Particle i_p's pairs: the triangles filed in its cell whose grown box holds it, that
-        it is not a corner of, within the reach: its row of ``found``."""
+        it is not a corner of, within the reach, and its crossed ones: its row of ``found``."""
         grid = self.triangle_boxes
-        self.found_count[i_p] = 0
+        self._start_row(i_p)
         if grid.filed[None]:
             cell = grid.cell_of(x[i_p])
             bucket = grid.bucket(cell)
@@ -218,16 +232,17 @@ class CandidatePairs:
                         if (corners != i_p).all():
                             _, offset = vertex_triangle_offset(x, i_p, corners, self.model.real)
                             if offset.norm() <= self.model.real(self.reach):
-                                self._find(i_p, t)
+                                self._find(i_p, t, self._carried_record(i_p, t))
+        self._keep_crossed(i_p)
 
     @ti.func
     def _list_edge_edge(self, x, e):
         """Edge e's pairs with the edges of higher index whose grown boxes overlap its own (each
-        pair in the first cell both span), that share no particle with it, within the reach: its
-        row of ``found``."""
+        pair in the first cell both span), that share no particle with it, within the reach, and
+        its crossed ones: its row of ``found``."""
         grid = self.edge_boxes
         owner = self.model.particle_count + e
-        self.found_count[owner] = 0
+        self._start_row(owner)
         if grid.filed[None]:
             ends = self.ends[e]
             low, high = grid.low_cell[e], grid.high_cell[e]
@@ -250,7 +265,8 @@ class CandidatePairs:
                                 _, _, offset = edge_edge_offset(x, ends, other_ends,
                                                                 self.model.real)
                                 if offset.norm() <= self.model.real(self.reach):
-                                    self._find(owner, other)
+                                    self._find(owner, other, self._carried_record(owner, other))
+        self._keep_crossed(owner)
 
     @ti.func
     def _list_entries(self):
@@ -270,3 +286,4 @@ class CandidatePairs:
                 i = self.pair_particles[k][slot]
                 self.entry[self.entry_fill[i]] = 4 * k + slot
                 self.entry_fill[i] += 1
+

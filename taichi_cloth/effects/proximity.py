@@ -1,8 +1,11 @@
 """Closest points between cloth primitives, for self-collision (``self_collision.py``): a point
 and a triangle, two segments (C. Ericson, "Real-Time Collision Detection", Morgan Kaufmann 2005,
-§5.1.5 and §5.1.9)."""
+§5.1.5 and §5.1.9); and where the two primitives of a pair are against each other, along the
+normal that its side record uses (``crossing_history``)."""
 
 import taichi as ti
+
+VERTEX_TRIANGLE, EDGE_EDGE = 0, 1  # kinds of pairs
 
 
 @ti.func
@@ -78,3 +81,65 @@ def edge_edge_offset(x, first, second, real: ti.template()):
     a, b, c, d = x[first[0]], x[first[1]], x[second[0]], x[second[1]]
     s, u = closest_between_segments(a, b, c, d, real)
     return s, u, (a + s * (b - a)) - (c + u * (d - c))
+
+
+@ti.func
+def vertex_triangle_side(x, corners, weights, offset, real: ti.template()):
+    """Where a vertex is against a triangle of particles ``corners`` (``vertex_triangle_offset``'s
+    weights and offset): (whether its closest point lies inside the face, every weight > 0, as 1 or 0; the
+    face's unit normal (b − a)×(c − a)/|…|, 0 for a degenerate triangle; the offset along it [m])."""
+    a, b, c = x[corners[0]], x[corners[1]], x[corners[2]]
+    area_normal = (b - a).cross(c - a)
+    size = area_normal.norm()
+    normal = ti.Vector.zero(real, 3)
+    if size > 0:
+        normal = area_normal / size
+    inside = 0
+    if size > 0 and (weights > 0).all():
+        inside = 1
+    return inside, normal, offset.dot(normal)
+
+
+@ti.func
+def edge_edge_side(x, first, second, s, u, offset, real: ti.template()):
+    """Where two edges are against each other (``edge_edge_offset``'s s, u and offset): (whether
+    both closest points lie inside their edges, 0 < s, u < 1, the edges not parallel, as 1
+    or 0; the unit
+    normal (b − a)×(d − c)/|…| of the first edge (a, b) and second (c, d), 0 when parallel; the
+    offset along it [m])."""
+    a, b, c, d = x[first[0]], x[first[1]], x[second[0]], x[second[1]]
+    first_axis, second_axis = b - a, d - c
+    crossing = first_axis.cross(second_axis)
+    size = crossing.norm()
+    normal = ti.Vector.zero(real, 3)
+    parallel = size <= real(1e-6) * first_axis.norm() * second_axis.norm()
+    if not parallel:
+        normal = crossing / size
+    inside = 0
+    if not parallel and 0 < s < 1 and 0 < u < 1:
+        inside = 1
+    return inside, normal, offset.dot(normal)
+
+
+@ti.func
+def pair_side(x, kind, ids, real: ti.template()):
+    """The pair of ``kind`` and particles ``ids`` at positions x: (its four particles' shares
+    of the offset between its closest points, (1, −w_a, −w_b, −w_c) or (1 − s, s, u − 1,
+    −u); whether its closest points are inside; its unit normal; the offset along it [m];
+    the offset [m]: the first point minus the second) (``vertex_triangle_side``,
+    ``edge_edge_side``)."""
+    inside, normal, height = 0, ti.Vector.zero(real, 3), real(0.0)
+    share, offset = ti.Vector.zero(real, 4), ti.Vector.zero(real, 3)
+    if kind == VERTEX_TRIANGLE:
+        corners = ti.Vector([ids[1], ids[2], ids[3]])
+        weights, offset_vt = vertex_triangle_offset(x, ids[0], corners, real)
+        offset = offset_vt
+        inside, normal, height = vertex_triangle_side(x, corners, weights, offset, real)
+        share = ti.Vector([1.0, -weights[0], -weights[1], -weights[2]], real)
+    else:
+        first, second = ti.Vector([ids[0], ids[1]]), ti.Vector([ids[2], ids[3]])
+        s, u, offset_ee = edge_edge_offset(x, first, second, real)
+        offset = offset_ee
+        inside, normal, height = edge_edge_side(x, first, second, s, u, offset, real)
+        share = ti.Vector([1 - s, s, u - 1, -u], real)
+    return share, inside, normal, height, offset

@@ -18,6 +18,12 @@ on the relative slip u):
 The elastic part is −∇ of the energy ½·m·k̂·(thickness − d)² (the closest points move
 tangentially to first order), so momentum is conserved and the energy balance holds.
 
+A pair remembers which side of each other its primitives belong on (``crossing_history``): while
+its closest points stay inside (over the face; within both edges) d is signed, so a pair that
+has passed through itself is pushed back, not further through; and after every step
+(``apply``, the post step) a pair that crossed within it is put back on its side
+(``_separate_crossed``).
+
 Candidate pairs (``effects/candidate_pairs.py``): every pair within the reach, thickness +
 padding, in one compact list, rebuilt only when the cloth has deformed (its best rigid motion
 taken out) by half the padding since the last build.
@@ -35,16 +41,19 @@ from dataclasses import dataclass
 import numpy as np
 import taichi as ti
 
+from taichi_cloth.effects import crossing_history
 from taichi_cloth.effects.base import Effect, EffectContext
-from taichi_cloth.effects.candidate_pairs import VERTEX_TRIANGLE, CandidatePairs
+from taichi_cloth.effects.candidate_pairs import CandidatePairs
 from taichi_cloth.effects.penalty import (normal_force_magnitude, penalty_damping_block,
                                           penalty_force)
-from taichi_cloth.effects.proximity import edge_edge_offset, vertex_triangle_offset
+from taichi_cloth.effects.proximity import VERTEX_TRIANGLE
 from taichi_cloth.errors import InputError
 from taichi_cloth.runtime import runs_on_cpu
 from taichi_cloth.settings import setting
 
 PADDING = 1.0  # the list's padding in thicknesses: rebuilt after half of it is deformed
+SEPARATION = 0.25  # a crossed pair is put back this fraction of the thickness apart
+SEPARATION_SWEEPS = 4  # sweeps of the list that put crossed pairs back, at most, each step
 CONTACTS_PER_PARTICLE = 4  # the stiffness bound for dt = "auto": a vertex, corner and edge shares
 
 
@@ -86,6 +95,9 @@ class SelfCollision(Effect):
         self.padding = PADDING * settings.thickness  # m: the list holds pairs within reach
         self.reach = settings.thickness + self.padding  # m
         self.pairs = CandidatePairs(model, self.reach, self.padding)
+        self.post_step = self  # ``apply``: the side records after every step
+        self.moved = ti.field(ti.i32, ())  # pairs a sweep of ``_separate_crossed`` put back
+        self.separations = ti.field(ti.i32, ())  # pairs put back since the start
         capacity = self.pairs.capacity
         # per evaluation: each pair's force on its first point, its blocks, its particles' shares
         self.pair_force = ti.Vector.field(3, real, capacity)
@@ -110,20 +122,21 @@ class SelfCollision(Effect):
     @ti.func
     def _evaluate(self, x, v, k):
         """Pair k's force on its first point, its blocks and its particles' shares (the share
-        of a corner or end: its weight, negative on the second primitive)."""
+        of a corner or end: its weight, negative on the second primitive), with the pair's side
+        record (``crossing_history.oriented``)."""
         real = self.model.real
         ids = self.pairs.pair_particles[k]
-        force, stiffness, damping = ti.Vector.zero(real, 3), ti.Matrix.zero(real, 3, 3), \
-            ti.Matrix.zero(real, 3, 3)
-        share = ti.Vector.zero(real, 4)
-        if self.pairs.pair_kind[k] == VERTEX_TRIANGLE:  # (an inactive pair's force is 0)
-            corners = ti.Vector([ids[1], ids[2], ids[3]])
-            weights, force, stiffness, damping = self._vertex_triangle(x, v, ids[0], corners)
-            share = ti.Vector([1.0, -weights[0], -weights[1], -weights[2]], real)
-        else:
-            s, u, force, stiffness, damping = self._edge_edge(
-                x, v, ti.Vector([ids[0], ids[1]]), ti.Vector([ids[2], ids[3]]))
-            share = ti.Vector([1 - s, s, u - 1, -u], real)
+        share, inside, normal, height, offset = self.pairs.side(x, k)
+        direction, distance = crossing_history.oriented(self.pairs.record(k), inside, normal,
+                                                        height, offset, real)
+        relative_velocity = ti.Vector.zero(real, 3)
+        for slot in ti.static(range(4)):
+            relative_velocity += share[slot] * v[ids[slot]]
+        mass = ti.static(self.model.particle_mass)
+        pair_mass = mass[ids[0]]  # a vertex's own; two edges: their four particles' mean
+        if self.pairs.pair_kind[k] != VERTEX_TRIANGLE:
+            pair_mass = 0.25 * (mass[ids[0]] + mass[ids[1]] + mass[ids[2]] + mass[ids[3]])
+        force, stiffness, damping = self._pair(pair_mass, direction, distance, relative_velocity)
         self.pair_force[k] = force
         self.pair_share[k] = share
         if ti.static(self.blocks):
@@ -131,17 +144,17 @@ class SelfCollision(Effect):
             self.pair_damping[k] = damping
 
     @ti.func
-    def _pair(self, mass, offset, relative_velocity):
-        """The penalty between two points ``offset`` apart [m] (first minus second) with that
-        relative velocity, for ``mass`` [kg]: (force on the first [N], its stiffness block
-        −m·k̂·n·nᵀ and damping block), all zero beyond the thickness or when the normal force is
-        clamped to 0 (leaving fast: its blocks would make release sticky)."""
+    def _pair(self, mass, normal, distance, relative_velocity):
+        """The penalty between two points ``distance`` apart [m] along the unit ``normal`` (from
+        the second to the first; negative: the first has crossed to the second's other side,
+        ``crossing_history.oriented``) with that relative velocity, for ``mass`` [kg]: (force
+        on the first [N], its stiffness block −m·k̂·n·nᵀ and damping block), all zero beyond the
+        thickness, for a zero normal, or when the normal force is clamped to 0 (leaving fast:
+        its blocks would make release sticky)."""
         real = self.model.real
-        distance = offset.norm()
-        normal = offset / ti.max(distance, 1e-30)
         depth = real(self.thickness) - distance
         k_hat, zeta, mu = real(self.stiffness), real(self.damping_ratio), real(self.friction)
-        active = distance > 0 and depth > 0 and normal_force_magnitude(
+        active = normal.norm_sqr() > 0 and depth > 0 and normal_force_magnitude(
             mass, depth, relative_velocity.dot(normal), k_hat, zeta) > 0
         force = ti.Vector.zero(real, 3)
         stiffness = ti.Matrix.zero(real, 3, 3)
@@ -155,27 +168,72 @@ class SelfCollision(Effect):
         return force, stiffness, damping
 
     @ti.func
-    def _vertex_triangle(self, x, v, i_p, corners):
-        """Vertex i_p against the triangle of ``corners``: (barycentric weights of the closest
-        point, force on the vertex, blocks)."""
-        weights, offset = vertex_triangle_offset(x, i_p, corners, self.model.real)
-        closest_velocity = weights[0] * v[corners[0]] + weights[1] * v[corners[1]] \
-            + weights[2] * v[corners[2]]
-        force, stiffness, damping = self._pair(self.model.particle_mass[i_p], offset,
-                                               v[i_p] - closest_velocity)
-        return weights, force, stiffness, damping
+    def apply(self, state, t):
+        """After every step (``post_step``): the pairs' side records brought to its positions
+        (``CandidatePairs.commit``), then the pairs that crossed within it put back
+        (``_separate_crossed``)."""
+        self.pairs.commit(state.x, self.serial)
+        self._separate_crossed(state)
 
     @ti.func
-    def _edge_edge(self, x, v, first, second):
-        """Edge ``first`` (its two particles) against edge ``second``: (s, u, force on the first
-        edge's closest point, blocks), with the four particles' mean mass."""
-        s, u, offset = edge_edge_offset(x, first, second, self.model.real)
-        velocity_first = (1 - s) * v[first[0]] + s * v[first[1]]
-        velocity_second = (1 - u) * v[second[0]] + u * v[second[1]]
-        mass = ti.static(self.model.particle_mass)
-        mean_mass = 0.25 * (mass[first[0]] + mass[first[1]] + mass[second[0]] + mass[second[1]])
-        force, stiffness, damping = self._pair(mean_mass, offset, velocity_first - velocity_second)
-        return s, u, force, stiffness, damping
+    def _separate_crossed(self, state):
+        """The pairs that crossed within the step put back onto their own sides: a sweep over
+        the list in its order (``_separate``) of the pairs whose record says they crossed, then
+        up to ``SEPARATION_SWEEPS`` − 1 more of every pair inside and on the wrong side of its
+        record while the sweep before moved any (putting one pair back can push a neighbour
+        through: two diagonals of a tight fold take turns otherwise); on one thread when the
+        effect's loops are serial (then in list order, Gauss–Seidel)."""
+        if ti.static(self.serial):
+            ti.loop_config(serialize=True)
+            for sweep in range(SEPARATION_SWEEPS):
+                if sweep == 0 or self.moved[None] > 0:
+                    self.moved[None] = 0
+                    for k in range(self.pairs.pair_count[None]):
+                        self._separate(state, k, sweep == 0)
+        else:
+            for sweep in ti.static(range(SEPARATION_SWEEPS)):
+                self.moved[None] = 0 if ti.static(sweep == 0) else self.moved[None]
+                for k in range(self.pairs.pair_count[None]):
+                    if ti.static(sweep == 0) or self.moved[None] > 0:
+                        self._separate(state, k, ti.static(sweep == 0))
+
+    @ti.func
+    def _separate(self, state, k, crossed_only):
+        """Pair k, if it has crossed (by its record, or with ``crossed_only`` false also by
+        being inside and on the other side than its record's, σ·h < 0), moved back onto its side
+        (``SEPARATION`` of the thickness: the penalty, oriented by the record, does the rest
+        over the next steps without a jump that stretches the cloth), and its approach along
+        the normal stopped: the inelastic projection of Bridson, Fedkiw & Anderson (2002,
+        §7.1) on the constraint C = σ·n·Σ_i b_i·x_i − SEPARATION·thickness (b the pair's shares,
+        σ·n the normal of its side): x_i += λ·b_i·w_i·σn with λ = −C / Σ_i b_i²·w_i (w the
+        inverse masses; pinned particles do not move), and the same for the velocities when
+        Σ_i b_i·v_i·σn < 0. Momentum is kept (Σ b_i = 0); the pair's record is back on its
+        side; ``moved`` counts it."""
+        real = self.model.real
+        inverse_mass = ti.static(self.model.particle_inv_mass)
+        record = self.pairs.record(k)
+        crossed = crossing_history.is_crossed(record)
+        if (crossed and crossed_only) or (
+                not crossed_only and ti.abs(record) == crossing_history.INSIDE):
+            ids = self.pairs.pair_particles[k]
+            share, inside, normal, height, _offset = self.pairs.side(state.x, k)
+            side = real(1.0) if record > 0 else real(-1.0)
+            if crossed or (inside and side * height < 0):
+                weight = real(0.0)
+                approach = real(0.0)
+                for slot in ti.static(range(4)):
+                    weight += share[slot] ** 2 * inverse_mass[ids[slot]]
+                    approach += share[slot] * state.v[ids[slot]].dot(side * normal)
+                if weight > 0 and normal.norm_sqr() > 0:
+                    lift = (real(SEPARATION * self.thickness) - side * height) / weight
+                    stop = ti.max(-approach, 0.0) / weight
+                    for slot in ti.static(range(4)):
+                        move = share[slot] * inverse_mass[ids[slot]] * side * normal
+                        state.x[ids[slot]] += lift * move
+                        state.v[ids[slot]] += stop * move
+                    self.pairs.set_record(k, int(side) * crossing_history.INSIDE)
+                    self.moved[None] += 1
+                    self.separations[None] += 1
 
     @ti.func
     def force(self, model, x, v, i_p, t):
@@ -202,13 +260,26 @@ class SelfCollision(Effect):
                 damping += weight * self.pair_damping[pair]
         return stiffness, damping
 
+    def back_up(self) -> None:
+        self.pairs.back_up()
+
+    def roll_back(self) -> None:
+        self.pairs.roll_back()
+
+    def forget_history(self) -> None:
+        self.pairs.forget()
+
     def frame_metrics(self, x: np.ndarray) -> dict:
         """Candidate pairs dropped since the start (0 unless the capacities of
         ``candidate_pairs`` are too small for the scene: then contacts can be missed), the list's
-        builds since the start and its pairs at the last build."""
+        builds since the start, its pairs at the last build, the pairs put back onto their sides
+        since the start (``_separate``), and the listed pairs that the last step's end left
+        crossed by their records (0 unless the sweeps ran out)."""
         return {"self_collision_overflow": int(self.pairs.overflow[None]),
                 "self_collision_builds": int(self.pairs.rebuilds[None]),
-                "self_collision_pairs": int(self.pairs.pair_count[None])}
+                "self_collision_pairs": int(self.pairs.pair_count[None]),
+                "self_collision_separations": int(self.separations[None]),
+                "self_collision_crossed": self.pairs.crossed_count()}
 
     def stability_modes(self) -> list[tuple[float, float]]:
         """The penalty's mode, with up to ``CONTACTS_PER_PARTICLE`` contacts on one particle."""

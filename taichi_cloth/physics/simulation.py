@@ -29,7 +29,7 @@ import taichi as ti
 
 from taichi_cloth.cloth.garment import build_garment
 from taichi_cloth.config.scene import Scene, load_scene
-from taichi_cloth.effects import EffectContext, build_effects, model_options
+from taichi_cloth.effects import EffectContext, build_effects, model_options, post_step_of
 from taichi_cloth.errors import UnstableError
 from taichi_cloth.physics.control import Control
 from taichi_cloth.physics.forces import Forces
@@ -101,11 +101,8 @@ class Simulation:
             effect.upload()
         self.forces = Forces(self.model, self.effects,
                              packed_grid_for(self.model, integrator_class.packs_springs))
-        post_steps = [e.post_step for e in self.effects if e.post_step is not None]
-        if len(post_steps) > 1:
-            raise NotImplementedError("more than one effect with a post step (projection)")
         self.integrator = make_integrator(scene.simulation.integrator, self.forces, self.control,
-                                          post_steps[0] if post_steps else None, scene.simulation)
+                                          post_step_of(self.effects), scene.simulation)
         # scratch for ``total_forces``, allocated with the states (one SNode tree)
         self.force_scratch = ti.Vector.field(3, self.model.real, self.model.particle_count)
         self.state_in, self.state_out, self.backup = self.model.states(3)
@@ -182,8 +179,22 @@ class Simulation:
         self.forget_crossings()
 
     def forget_crossings(self) -> None:
-        """The positions were set from outside: the crossing pairs are counted afresh."""
+        """The positions were set from outside: crossings counted afresh, effects' history gone."""
         self._crossings = None
+        for effect in self.effects:
+            effect.forget_history()
+
+    def _back_up(self) -> None:
+        """The state and what the effects carry from step to step, kept for a redone frame."""
+        self.backup.copy_from(self.state_in)
+        for effect in self.effects:
+            effect.back_up()
+
+    def _roll_back(self) -> None:
+        """The state of the last ``_back_up`` put back, and what the effects carried then."""
+        self.state_in.copy_from(self.backup)
+        for effect in self.effects:
+            effect.roll_back()
 
     def state_problem(self, x: np.ndarray, v: np.ndarray,
                       strain: float | None = None) -> str | None:
@@ -252,7 +263,7 @@ class Simulation:
         rest of the run), up to ``simulation.max_retries`` times; then ``UnstableError``.
         Nothing non-finite leaves. With self-collision declared or ``simulation.redo_strain``
         set, each try is itself refined (``_advance_refining``)."""
-        self.backup.copy_from(self.state_in)
+        self._back_up()
         if self.guards_crossings and self._crossings is None:
             self._crossings = self.intersections.count(self.positions())
         for attempt in range(self.scene.simulation.max_retries + 1):
@@ -264,7 +275,7 @@ class Simulation:
             if attempt == self.scene.simulation.max_retries:
                 break
             record.retries += 1
-            self.state_in.copy_from(self.backup)
+            self._roll_back()
             self.set_time_step(self.time_step.dt / 2, 2 * self.time_step.substeps_per_frame)
         integrator = self.scene.simulation.integrator
         advice = "lower simulation.dt or set it to \"auto\", or use integrator = \"implicit\""
@@ -295,7 +306,7 @@ class Simulation:
         strain_before = math.inf
         for halvings in range(REDO_HALVINGS + 1 if refines else 1):
             if halvings:
-                self.state_in.copy_from(self.backup)
+                self._roll_back()
                 self.set_time_step(dt / 2 ** halvings, substeps * 2 ** halvings)
             x = v = strain = None
             try:
@@ -372,16 +383,6 @@ class Simulation:
                 on_frame(frame, metrics)
         return record
 
-    def _solver_report(self, record: RunRecord) -> dict:
-        """CG iterations per step of the implicit integrator (nothing for the explicit ones)."""
-        if not record.cg_iterations:
-            return {}
-        return {"cg": {"tolerance": self.scene.simulation.cg_tolerance,
-                       "max_iterations": self.scene.simulation.cg_max_iterations,
-                       "iterations_mean": float(np.mean(record.cg_iterations)),
-                       "iterations_max": int(np.max(record.cg_iterations)),
-                       "unconverged_steps": self.integrator.unconverged_steps}}
-
     def stats(self, record: RunRecord) -> dict:
         """The ``stats.json`` document (README, "Outputs")."""
         scene = self.scene
@@ -408,7 +409,7 @@ class Simulation:
             "surface_samples": self.model.particle_count + len(self.surface_edges)
             + len(self.garment.triangles),
             "wall_seconds": {k: round(v, 4) for k, v in record.wall_seconds.items()},
-            **self._solver_report(record),
+            **self.integrator.solver_report(record.cg_iterations),
             **({"settle": self.settle_report} if self.settle_report is not None else {}),
             "per_frame": [f.as_dict() for f in record.frames],
         }

@@ -19,8 +19,9 @@ class PassTimer:
     """Kernels that run one pass of a simulation ``count`` times: the spring pass (grid
     cloth: pack + SIMD stencil; otherwise the CSR gather), the contact pass (pose the
     capsules, then every particle's contact force) and the self-collision pass (its
-    ``prepare``, then every particle's gather: with its candidate lists kept, as most
-    evaluations find them, or rebuilt every pass, as after half the padding of motion). Loops
+    ``prepare``, then every particle's gather, then its post step, the side records: with its
+    candidate lists kept, as most evaluations find them, or rebuilt every pass, as after half
+    the padding of motion). Loops
     are serial when the integrator's are, like the substep they come from."""
 
     def __init__(self, simulation):
@@ -64,6 +65,7 @@ class PassTimer:
             for i_p in range(self.model.particle_count):
                 self.out[i_p] = effect.force(self.model, state.x, state.v, i_p,
                                              ti.cast(t, self.model.real))
+            effect.apply(state, t)  # its post step: the side records at the step's end
 
     @ti.kernel
     def _run(self, state: ti.template(), t: ti.f64, count: ti.i32, which: ti.template()):

@@ -67,6 +67,11 @@ class Integrator:
         (NumPy arrays by name; none here), for a checkpoint."""
         return {}
 
+    def solver_report(self, iterations: list[int]) -> dict:
+        """What ``stats.json`` reports of a solver, given its iterations per step: nothing
+        here (no solver)."""
+        return {}
+
     def restore_memory(self, memory: dict) -> None:
         """Put back what ``memory`` returned (a resumed run then takes the very same steps)."""
 

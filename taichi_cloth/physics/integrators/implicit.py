@@ -90,6 +90,16 @@ class BackwardEuler(GaussSeidelSweeps, BlockConjugateGradient, Integrator):
                 "last_dt": np.array(self.last_dt, np.float64),
                 "unconverged_steps": np.array(self.unconverged_steps)}
 
+    def solver_report(self, iterations: list[int]) -> dict:
+        """CG's tolerance and iteration cap, its iterations per step (mean, most) and the steps
+        that did not converge, for ``stats.json`` (nothing before a step)."""
+        if not iterations:
+            return {}
+        return {"cg": {"tolerance": self.tolerance, "max_iterations": self.max_iterations,
+                       "iterations_mean": float(np.mean(iterations)),
+                       "iterations_max": int(np.max(iterations)),
+                       "unconverged_steps": self.unconverged_steps}}
+
     def restore_memory(self, memory: dict) -> None:
         """``memory``'s history back; a checkpoint written before the warm start took one step
         has no ``last_dt``: its next step starts cold."""
