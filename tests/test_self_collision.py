@@ -195,15 +195,22 @@ def test_a_step_that_crosses_ends_with_the_pair_a_thickness_apart_on_its_side(be
     assert metrics["self_collision_separations"] == separations + 1
 
 
-def test_a_vertex_that_comes_through_the_face_from_beyond_the_reach_in_one_step_is_put_back():
+@pytest.mark.parametrize("mend", ["next step", "repair"])
+def test_a_vertex_that_comes_through_the_face_from_beyond_the_reach_in_one_step_is_put_back(mend):
     """Vertex 3 three centimetres above the triangle (beyond the list's reach) after a step and
-    3 mm below it after the next, with no force evaluation near it: the step's end lists the
-    pair, takes its side from where the last step ended, and puts the vertex back above."""
+    3 mm below it after the next, with no force evaluation near it: the next step, or the
+    frame-end ``repair``, lists the pair with its side from where the vertex was last seen with
+    the list whole, and puts the vertex back above."""
     forces, state, out, effect = two_triangle_physics()
     self_collision_force(vertex_over_the_triangle(0.03))
     finish_step(effect, state)
     state.x.from_numpy(vertex_over_the_triangle(-0.003))
     finish_step(effect, state)
+    if mend == "next step":
+        forces.evaluate(state.x, state.v, 0.0, out)
+        finish_step(effect, state)
+    else:
+        effect.repair(state)
     x = state.x.to_numpy()
     assert x[3, 1] > x[0, 1] and effect.frame_metrics(x)["self_collision_crossed"] == 0
 

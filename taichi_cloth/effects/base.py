@@ -35,7 +35,7 @@ Genesis' ``force_fields.py``). What an effect declares:
 - ``back_up()``, ``roll_back()`` and ``forget_history()``: what it carries from step to step
   besides the state (self-collision's side records), kept at the start of a frame, put back
   when the frame is redone, and dropped when the positions are set from outside; nothing by
-  default.
+  default. ``repair(state)``: mend a frame's end that crossed itself (self-collision).
 
 Every value an effect reads that is fixed for the run is baked in at compile time, as
 ``model.real(value)`` so that it keeps the model's precision; the time t is a kernel argument.
@@ -86,6 +86,9 @@ class Effect:
 
     def forget_history(self) -> None:
         """Drop what the effect carries from step to step: nothing here."""
+
+    def repair(self, state) -> None:
+        """Mend a frame's end ``state`` that the cloth crossed itself in: nothing here."""
 
     @staticmethod
     def model_options(settings) -> dict:

@@ -232,7 +232,7 @@ class CandidatePairs(PairRecords):
                         if (corners != i_p).all():
                             _, offset = vertex_triangle_offset(x, i_p, corners, self.model.real)
                             if offset.norm() <= self.model.real(self.reach):
-                                self._find(i_p, t, self._carried_record(i_p, t))
+                                self._find(i_p, t, self._carried_record(i_p, t, VERTEX_TRIANGLE))
         self._keep_crossed(i_p)
 
     @ti.func
@@ -265,7 +265,8 @@ class CandidatePairs(PairRecords):
                                 _, _, offset = edge_edge_offset(x, ends, other_ends,
                                                                 self.model.real)
                                 if offset.norm() <= self.model.real(self.reach):
-                                    self._find(owner, other, self._carried_record(owner, other))
+                                    self._find(owner, other,
+                                               self._carried_record(owner, other, EDGE_EDGE))
         self._keep_crossed(owner)
 
     @ti.func

@@ -1,21 +1,22 @@
 """The side records of self-collision's candidate pairs (``effects/crossing_history.py``), kept
 beside the finds of ``candidate_pairs.CandidatePairs``, which mixes this class in: each walk's
 row of finds has a row of records; a rebuild carries a record over to the same pair found
-again, gives a new pair the record it had at the last finished step (``committed_x``), and keeps
-a pair that has crossed in the list, however far apart it has gone, until it is back on its
-side; ``commit`` brings the list and the records to the end of every step; ``back_up`` and
-``roll_back`` keep them with the state that a redone frame goes back to (docs/physics.md,
-"Self-collision").
+again, gives a new pair the record it had at the last finished step at which the list was whole,
+or else at the step before (``reference_x``), and keeps a pair that has crossed in the list,
+however far apart it has gone, until it is back on its side; ``commit`` brings the records to
+the end of every step; ``back_up`` and ``roll_back`` keep them with the state that a redone
+frame goes back to (docs/physics.md, "Self-collision").
 
 The host class provides ``model``, ``found``/``found_count`` (the walks' rows), ``pair_count``,
 ``pair_kind``, ``pair_particles``, ``pair_slot`` (each pair's find), ``_find``, ``_pair_of``,
-``update`` and ``rebuild_asked``.
+``_measure_deformation`` (which sets ``stale``) and ``rebuild_asked``.
 """
 
 import taichi as ti
 
 from taichi_cloth.effects import crossing_history
-from taichi_cloth.effects.proximity import pair_side
+from taichi_cloth.effects.proximity import (VERTEX_TRIANGLE, edge_edge_pair_side, pair_side,
+                                            vertex_triangle_pair_side)
 
 
 @ti.data_oriented
@@ -24,16 +25,17 @@ class PairRecords:
 
     def allocate_records(self) -> None:
         """The records beside the finds of ``found``, the rows before a rebuild (carried over)
-        and at a redone frame's start (``back_up``), and the positions of the last finished
-        step [m] (``commit``) with whether there was one."""
+        and at a redone frame's start (``back_up``), the positions [m] that new pairs take their
+        records at and those of the last finished step (``commit``), and whether there was
+        one."""
         rows, row_count = self.found.shape, self.found_count.shape
         self.found_record = ti.field(ti.i32, rows)
         self.previous_found, self.kept_found = (ti.field(ti.i32, rows) for _ in range(2))
         self.previous_record, self.kept_record = (ti.field(ti.i32, rows) for _ in range(2))
         self.previous_count, self.kept_count = (ti.field(ti.i32, row_count) for _ in range(2))
         particles, real = self.model.particle_count, self.model.real
-        self.committed_x, self.kept_committed_x = (ti.Vector.field(3, real, particles)
-                                                   for _ in range(2))
+        self.reference_x, self.kept_reference_x, self.last_x, self.kept_last_x = (
+            ti.Vector.field(3, real, particles) for _ in range(4))
         self.committed, self.kept_committed = ti.field(ti.i32, ()), ti.field(ti.i32, ())
 
     @ti.func
@@ -46,10 +48,11 @@ class PairRecords:
         self.found_count[owner] = 0
 
     @ti.func
-    def _carried_record(self, owner, other):
-        """The side record of the pair that walk ``owner`` finds as item ``other``: the one it
-        held before this rebuild, or for a new pair the one it would have had at the last
-        finished step (``committed_x``; ``crossing_history.UNKNOWN`` before the first)."""
+    def _carried_record(self, owner, other, kind: ti.template()):
+        """The side record of the pair of ``kind`` that walk ``owner`` finds as item ``other``:
+        the one it held before this rebuild, or for a new pair the one it would have had at the
+        last finished step at which the list was whole (``reference_x``;
+        ``crossing_history.UNKNOWN`` before the first step)."""
         record = crossing_history.UNKNOWN
         held = 0
         for n in range(self.previous_count[owner]):
@@ -57,9 +60,11 @@ class PairRecords:
                 record = self.previous_record[owner, n]
                 held = 1
         if not held and self.committed[None]:
-            kind, ids = self._pair_of(owner, other)
-            _share, inside, _normal, height, _offset = pair_side(self.committed_x, kind, ids,
-                                                                   self.model.real)
+            _kind, ids = self._pair_of(owner, other)
+            side = ti.static(vertex_triangle_pair_side if kind == VERTEX_TRIANGLE
+                             else edge_edge_pair_side)
+            _share, inside, _normal, height, _offset = side(self.reference_x, ids,
+                                                            self.model.real)
             record = crossing_history.commit(crossing_history.UNKNOWN, inside, height)
         return record
 
@@ -95,12 +100,17 @@ class PairRecords:
 
     @ti.func
     def commit(self, x, serial: ti.template()):
-        """The positions x [m] of a finished step: the list brought up to date there
-        (``update``: a pair near at the step's end is listed, a new one with its record at the
-        step's start), every listed pair's side record brought to x
-        (``crossing_history.commit``), and x kept as ``committed_x``; on one thread when
-        ``serial``."""
-        self.update(x)
+        """The positions x [m] of a finished step: every listed pair's side record brought to x
+        (``crossing_history.commit``); x becomes ``last_x``, and ``reference_x``, where the
+        pairs that the next build adds take their records, if the list still holds every pair
+        within the thickness there (``_measure_deformation``); if not, ``reference_x`` is the
+        step's start (the last ``last_x``), so a pair that came from beyond the reach through a
+        face within the step is seen to have crossed at the next step's end. On one thread when
+        ``serial``. (The build itself runs only in ``update``: inlined twice per step it
+        doubled the kernels' compile time.)"""
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            self._measure_deformation(x)
         if ti.static(serial):
             ti.loop_config(serialize=True)
         for k in range(self.pair_count[None]):
@@ -109,7 +119,11 @@ class PairRecords:
         if ti.static(serial):
             ti.loop_config(serialize=True)
         for i in range(self.model.particle_count):
-            self.committed_x[i] = x[i]
+            if self.stale[None] and self.committed[None]:
+                self.reference_x[i] = self.last_x[i]
+            else:
+                self.reference_x[i] = x[i]
+            self.last_x[i] = x[i]
         self.committed[None] = 1
 
     @ti.kernel
@@ -129,8 +143,8 @@ class PairRecords:
             for n in range(self.found_count[owner]):
                 self.kept_found[owner, n] = self.found[owner, n]
                 self.kept_record[owner, n] = self.found_record[owner, n]
-        for i in self.committed_x:
-            self.kept_committed_x[i] = self.committed_x[i]
+        for i in self.last_x:
+            self.kept_reference_x[i], self.kept_last_x[i] = self.reference_x[i], self.last_x[i]
         self.kept_committed[None] = self.committed[None]
 
     @ti.kernel
@@ -142,8 +156,8 @@ class PairRecords:
             for n in range(self.kept_count[owner]):
                 self.found[owner, n] = self.kept_found[owner, n]
                 self.found_record[owner, n] = self.kept_record[owner, n]
-        for i in self.committed_x:
-            self.committed_x[i] = self.kept_committed_x[i]
+        for i in self.last_x:
+            self.reference_x[i], self.last_x[i] = self.kept_reference_x[i], self.kept_last_x[i]
         self.committed[None] = self.kept_committed[None]
         self.rebuild_asked[None] = 1
 

@@ -128,18 +128,29 @@ def pair_side(x, kind, ids, real: ti.template()):
     −u); whether its closest points are inside; its unit normal; the offset along it [m];
     the offset [m]: the first point minus the second) (``vertex_triangle_side``,
     ``edge_edge_side``)."""
-    inside, normal, height = 0, ti.Vector.zero(real, 3), real(0.0)
-    share, offset = ti.Vector.zero(real, 4), ti.Vector.zero(real, 3)
+    share, inside, normal = ti.Vector.zero(real, 4), 0, ti.Vector.zero(real, 3)
+    height, offset = real(0.0), ti.Vector.zero(real, 3)
     if kind == VERTEX_TRIANGLE:
-        corners = ti.Vector([ids[1], ids[2], ids[3]])
-        weights, offset_vt = vertex_triangle_offset(x, ids[0], corners, real)
-        offset = offset_vt
-        inside, normal, height = vertex_triangle_side(x, corners, weights, offset, real)
-        share = ti.Vector([1.0, -weights[0], -weights[1], -weights[2]], real)
+        share, inside, normal, height, offset = vertex_triangle_pair_side(x, ids, real)
     else:
-        first, second = ti.Vector([ids[0], ids[1]]), ti.Vector([ids[2], ids[3]])
-        s, u, offset_ee = edge_edge_offset(x, first, second, real)
-        offset = offset_ee
-        inside, normal, height = edge_edge_side(x, first, second, s, u, offset, real)
-        share = ti.Vector([1 - s, s, u - 1, -u], real)
+        share, inside, normal, height, offset = edge_edge_pair_side(x, ids, real)
     return share, inside, normal, height, offset
+
+
+@ti.func
+def vertex_triangle_pair_side(x, ids, real: ti.template()):
+    """``pair_side`` of vertex ids[0] and the triangle of ids[1:]."""
+    corners = ti.Vector([ids[1], ids[2], ids[3]])
+    weights, offset = vertex_triangle_offset(x, ids[0], corners, real)
+    inside, normal, height = vertex_triangle_side(x, corners, weights, offset, real)
+    return ti.Vector([1.0, -weights[0], -weights[1], -weights[2]], real), inside, normal, \
+        height, offset
+
+
+@ti.func
+def edge_edge_pair_side(x, ids, real: ti.template()):
+    """``pair_side`` of the edges (ids[0], ids[1]) and (ids[2], ids[3])."""
+    first, second = ti.Vector([ids[0], ids[1]]), ti.Vector([ids[2], ids[3]])
+    s, u, offset = edge_edge_offset(x, first, second, real)
+    inside, normal, height = edge_edge_side(x, first, second, s, u, offset, real)
+    return ti.Vector([1 - s, s, u - 1, -u], real), inside, normal, height, offset

@@ -269,6 +269,18 @@ class SelfCollision(Effect):
     def forget_history(self) -> None:
         self.pairs.forget()
 
+    def repair(self, state) -> None:
+        """A frame's end with pairs of triangles through each other: the list brought up to
+        date there (a build if the cloth has deformed past it, its new pairs with their records
+        from the last step at which it was whole), then the post step again (``apply``): a pair
+        that came from beyond the reach through a face in the frame's last step is put back."""
+        self._repair(state)
+
+    @ti.kernel
+    def _repair(self, state: ti.template()):
+        self.pairs.update(state.x)
+        self.apply(state, 0.0)
+
     def frame_metrics(self, x: np.ndarray) -> dict:
         """Candidate pairs dropped since the start (0 unless the capacities of
         ``candidate_pairs`` are too small for the scene: then contacts can be missed), the list's

@@ -291,14 +291,11 @@ class Simulation:
         or None, halvings, x's largest stretch strain or None). A frame is redone at half the
         step, then a quarter (``REDO_HALVINGS``), the last try kept (its crossings and strain in
         the metrics), when it ends
-        - with more pairs of triangles through each other than it began with, self-collision
-          declared: the cloth passed through itself within a step (a penalty acts only once the
-          layers are within its thickness);
-        - with a larger max strain than ``simulation.redo_strain`` (when set): a contact that
-          began within a large step, or a pin pulling hard, stretched the cloth further than a
-          smaller step would; unless a halving left the strain above ``REDO_GAIN`` of the try
-          before it (the strain is the garment's, not the step's).
-        The step goes back to the run's afterwards, so a frame that a smaller step cannot mend
+        - with more pairs of triangles through each other than it began with, even after the
+          effects' ``repair`` (self-collision declared);
+        - with a larger max strain than ``simulation.redo_strain`` (when set), unless a halving
+          left it above ``REDO_GAIN`` of the try before (the garment's strain, not the step's).
+        The step goes back to the run's afterwards: a frame that a smaller step cannot mend
         costs that frame, not the run."""
         dt, substeps = self.time_step.dt, self.time_step.substeps_per_frame
         crossings = None
@@ -311,10 +308,7 @@ class Simulation:
             x = v = strain = None
             try:
                 self.advance_frame(frame, record, still)
-                x = self.positions()
-                v = self.state_in.v.to_numpy().astype(np.float64)
-                strain = largest_stretch_strain(self.model, x) if np.isfinite(x).all() else None
-                problem = self.state_problem(x, v, strain)
+                x, v, strain, problem = self._end_state()
             except SolverBreakdown as breakdown:
                 problem = f"could not be solved for ({breakdown})"
             if problem is not None or not refines:
@@ -322,6 +316,11 @@ class Simulation:
             tunnelled = False
             if self.guards_crossings:
                 crossings = self.intersections.count(x)
+                if crossings > self._crossings:  # first the effects' own mend (``repair``)
+                    for effect in self.effects:
+                        effect.repair(self.state_in)
+                    x, v, strain, problem = self._end_state()
+                    crossings = self.intersections.count(x)
                 tunnelled = crossings > self._crossings
             overstretched = False
             if self.redo_strain > 0:
@@ -331,6 +330,12 @@ class Simulation:
                 break
         self.set_time_step(dt, substeps)
         return problem, x, v, crossings, halvings, strain
+
+    def _end_state(self):
+        """(x [m], v [m/s], x's largest stretch strain or None, ``state_problem``) now."""
+        x, v = self.positions(), self.state_in.v.to_numpy().astype(np.float64)
+        strain = largest_stretch_strain(self.model, x) if np.isfinite(x).all() else None
+        return x, v, strain, self.state_problem(x, v, strain)
 
     def advance_frame(self, frame: int, record: RunRecord, still: bool = False) -> None:
         """The substeps to ``frame`` (≥ 1: t from (frame − 1)/fps to frame/fps), one kernel
