@@ -96,7 +96,7 @@ class SelfCollision(Effect):
         self.reach = settings.thickness + self.padding  # m
         self.pairs = CandidatePairs(model, self.reach, self.padding)
         self.post_step = self  # ``apply``: the side records after every step
-        self.moved = ti.field(ti.i32, ())  # pairs a sweep of ``_separate_crossed`` put back
+        self.moved = ti.field(ti.i32, ())  # pairs a sweep of ``_separate_crossed`` put back (CPU)
         self.separations = ti.field(ti.i32, ())  # pairs put back since the start
         capacity = self.pairs.capacity
         # per evaluation: each pair's force on its first point, its blocks, its particles' shares
@@ -181,8 +181,9 @@ class SelfCollision(Effect):
         the list in its order (``_separate``) of the pairs whose record says they crossed, then
         up to ``SEPARATION_SWEEPS`` − 1 more of every pair inside and on the wrong side of its
         record while the sweep before moved any (putting one pair back can push a neighbour
-        through: two diagonals of a tight fold take turns otherwise); on one thread when the
-        effect's loops are serial (then in list order, Gauss–Seidel)."""
+        through: two diagonals of a tight fold take turns otherwise), on one thread in list
+        order (Gauss–Seidel, bit-reproducible) when the effect's loops are serial; on a GPU all
+        ``SEPARATION_SWEEPS`` sweeps in parallel (the moves added atomically)."""
         if ti.static(self.serial):
             ti.loop_config(serialize=True)
             for sweep in range(SEPARATION_SWEEPS):
@@ -192,10 +193,8 @@ class SelfCollision(Effect):
                         self._separate(state, k, sweep == 0)
         else:
             for sweep in ti.static(range(SEPARATION_SWEEPS)):
-                self.moved[None] = 0 if ti.static(sweep == 0) else self.moved[None]
                 for k in range(self.pairs.pair_count[None]):
-                    if ti.static(sweep == 0) or self.moved[None] > 0:
-                        self._separate(state, k, ti.static(sweep == 0))
+                    self._separate(state, k, ti.static(sweep == 0))
 
     @ti.func
     def _separate(self, state, k, crossed_only):
@@ -272,8 +271,8 @@ class SelfCollision(Effect):
     def repair(self, state) -> None:
         """A frame's end with pairs of triangles through each other: the list brought up to
         date there (a build if the cloth has deformed past it, its new pairs with their records
-        from the last step at which it was whole), then the post step again (``apply``): a pair
-        that came from beyond the reach through a face in the frame's last step is put back."""
+        at ``reference_x``), then the post step again (``apply``): a pair that came from beyond
+        the reach through a face in the frame's last step is put back."""
         self._repair(state)
 
     @ti.kernel
@@ -285,8 +284,9 @@ class SelfCollision(Effect):
         """Candidate pairs dropped since the start (0 unless the capacities of
         ``candidate_pairs`` are too small for the scene: then contacts can be missed), the list's
         builds since the start, its pairs at the last build, the pairs put back onto their sides
-        since the start (``_separate``), and the listed pairs that the last step's end left
-        crossed by their records (0 unless the sweeps ran out)."""
+        since the start (``_separate``), and the listed pairs whose records say they are
+        crossed at the frame's end (0 unless the projection could not move one: every particle
+        of it pinned)."""
         return {"self_collision_overflow": int(self.pairs.overflow[None]),
                 "self_collision_builds": int(self.pairs.rebuilds[None]),
                 "self_collision_pairs": int(self.pairs.pair_count[None]),
