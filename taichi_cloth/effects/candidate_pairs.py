@@ -59,6 +59,7 @@ class CandidatePairs(PairRecords):
         # the rebuild test: each particle's offset from the centroid at the last build
         self.built_offset = ti.Vector.field(3, model.real, particles)
         self.centroid = ti.Vector.field(3, model.real, ())  # m: of the last evaluation's x
+        self.rotation = ti.Matrix.field(3, 3, model.real, ())  # the last fit's
         self.deformed = ti.field(model.real, ())  # m: the largest departure from a rigid motion
         self.stale = ti.field(ti.i32, ())  # whether this evaluation rebuilds the list
         self.rebuild_asked = ti.field(ti.i32, ())  # a rebuild at the next evaluation
@@ -81,6 +82,7 @@ class CandidatePairs(PairRecords):
     def upload(self) -> None:
         triangles, edges = self._host
         upload([(self.corners, triangles.astype(np.int32)), (self.ends, edges.astype(np.int32))])
+        self.rotation.from_numpy(np.eye(3))
         self.rebuild_asked[None] = 1
 
     def ask_rebuild(self) -> None:
@@ -96,7 +98,7 @@ class CandidatePairs(PairRecords):
         in particle and edge order."""
         ti.loop_config(serialize=True)
         for _ in range(1):
-            self._measure_deformation(x)
+            self._measure_deformation(x, True)
         ti.loop_config(serialize=True)
         for _ in range(1):
             if self.stale[None]:
@@ -114,10 +116,13 @@ class CandidatePairs(PairRecords):
                 self._list_entries()
 
     @ti.func
-    def _measure_deformation(self, x):
-        """``deformed``: the largest distance between a particle and where the rigid motion that
-        best fits the cloth since the build carries its build position (module docstring);
-        ``stale`` when it exceeds half the padding or a rebuild was asked."""
+    def _measure_deformation(self, x, fit: ti.template()):
+        """``deformed``: the largest distance between a particle and where a rigid motion
+        carries its build position (module docstring): with ``fit``, the one that best fits the
+        cloth since the build (kept in ``rotation``); without, the last fit's rotation about
+        today's centroid (any rotation keeps the bound true, and the step's end is close to the
+        evaluation that fitted it; no SVD inlined a second time). ``stale`` when it exceeds
+        half the padding or a rebuild was asked."""
         real = self.model.real
         particles = self.model.particle_count
         centroid = ti.Vector.zero(real, 3)
@@ -125,10 +130,13 @@ class CandidatePairs(PairRecords):
         anchor = x[0]  # Σ (x_i − anchor)·(X_i − C)ᵀ: C's rounding not scaled by |x| far away
         for i in range(particles):
             centroid += x[i]
-            covariance += (x[i] - anchor).outer_product(self.built_offset[i])
+            if ti.static(fit):
+                covariance += (x[i] - anchor).outer_product(self.built_offset[i])
         centroid /= particles
         self.centroid[None] = centroid
-        rotation, _ = ti.polar_decompose(covariance)
+        if ti.static(fit):
+            self.rotation[None], _ = ti.polar_decompose(covariance)
+        rotation = self.rotation[None]
         deformed = real(0.0)
         for i in range(particles):
             deformed = ti.max(deformed,

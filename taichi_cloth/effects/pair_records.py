@@ -110,7 +110,7 @@ class PairRecords:
         doubled the kernels' compile time.)"""
         ti.loop_config(serialize=True)
         for _ in range(1):
-            self._measure_deformation(x)
+            self._measure_deformation(x, False)
         if ti.static(serial):
             ti.loop_config(serialize=True)
         for k in range(self.pair_count[None]):
