@@ -33,18 +33,28 @@ class PairRecords:
         self.previous_found, self.kept_found = (ti.field(ti.i32, rows) for _ in range(2))
         self.previous_record, self.kept_record = (ti.field(ti.i32, rows) for _ in range(2))
         self.previous_count, self.kept_count = (ti.field(ti.i32, row_count) for _ in range(2))
+        # (count, found, record) of the rows, as ``_copy_row`` takes them
+        self.rows = (self.found_count, self.found, self.found_record)
+        self.previous_rows = (self.previous_count, self.previous_found, self.previous_record)
+        self.kept_rows = (self.kept_count, self.kept_found, self.kept_record)
         particles, real = self.model.particle_count, self.model.real
         self.reference_x, self.kept_reference_x, self.last_x, self.kept_last_x = (
             ti.Vector.field(3, real, particles) for _ in range(4))
         self.committed, self.kept_committed = ti.field(ti.i32, ()), ti.field(ti.i32, ())
 
     @ti.func
+    def _copy_row(self, owner, source: ti.template(), target: ti.template()):
+        """Row ``owner`` of the (count, found, record) fields ``source`` copied to ``target``."""
+        count = source[0][owner]
+        target[0][owner] = count
+        for n in range(count):
+            target[1][owner, n] = source[1][owner, n]
+            target[2][owner, n] = source[2][owner, n]
+
+    @ti.func
     def _start_row(self, owner):
         """Walk ``owner``'s row moved to ``previous_*`` (its records to carry over), emptied."""
-        self.previous_count[owner] = self.found_count[owner]
-        for n in range(self.found_count[owner]):
-            self.previous_found[owner, n] = self.found[owner, n]
-            self.previous_record[owner, n] = self.found_record[owner, n]
+        self._copy_row(owner, ti.static(self.rows), ti.static(self.previous_rows))
         self.found_count[owner] = 0
 
     @ti.func
@@ -83,15 +93,21 @@ class PairRecords:
                     self._find(owner, other, self.previous_record[owner, n])
 
     @ti.func
+    def _place(self, k):
+        """Pair k's find: (row, place) in ``found``."""
+        per_row = ti.static(self.found.shape[1])
+        return self.pair_slot[k] // per_row, self.pair_slot[k] % per_row
+
+    @ti.func
     def record(self, k):
         """Pair k's side record (``crossing_history``)."""
-        slot = self.pair_slot[k]
-        return self.found_record[slot // ti.static(self.found.shape[1]), slot % ti.static(self.found.shape[1])]
+        row, place = self._place(k)
+        return self.found_record[row, place]
 
     @ti.func
     def set_record(self, k, record):
-        slot = self.pair_slot[k]
-        self.found_record[slot // ti.static(self.found.shape[1]), slot % ti.static(self.found.shape[1])] = record
+        row, place = self._place(k)
+        self.found_record[row, place] = record
 
     @ti.func
     def side(self, x, k):
@@ -139,10 +155,7 @@ class PairRecords:
     def back_up(self):
         """The rows with their records kept (the start of a frame that may be redone)."""
         for owner in self.found_count:
-            self.kept_count[owner] = self.found_count[owner]
-            for n in range(self.found_count[owner]):
-                self.kept_found[owner, n] = self.found[owner, n]
-                self.kept_record[owner, n] = self.found_record[owner, n]
+            self._copy_row(owner, ti.static(self.rows), ti.static(self.kept_rows))
         for i in self.last_x:
             self.kept_reference_x[i], self.kept_last_x[i] = self.reference_x[i], self.last_x[i]
         self.kept_committed[None] = self.committed[None]
@@ -152,10 +165,7 @@ class PairRecords:
         """The rows of the last ``back_up`` put back, the list rebuilt from them at the next
         ``update``."""
         for owner in self.found_count:
-            self.found_count[owner] = self.kept_count[owner]
-            for n in range(self.kept_count[owner]):
-                self.found[owner, n] = self.kept_found[owner, n]
-                self.found_record[owner, n] = self.kept_record[owner, n]
+            self._copy_row(owner, ti.static(self.kept_rows), ti.static(self.rows))
         for i in self.last_x:
             self.reference_x[i], self.last_x[i] = self.kept_reference_x[i], self.kept_last_x[i]
         self.committed[None] = self.kept_committed[None]
