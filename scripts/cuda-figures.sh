@@ -1,10 +1,13 @@
 #!/usr/bin/env bash
 # The --arch cuda figures of docs/performance.md, on a machine with an NVIDIA GPU: the CPU/CUDA
-# agreement tests, then `bench --arch cuda` on the reference sheet and on the real scenes, each
-# part under its own time limit so that one slow or failing part cannot take the others with it.
-# Usage: scripts/cuda-figures.sh OUT_DIR  (JSON rows and each part's log land in OUT_DIR)
+# agreement tests (self-collision's GPU branch among them), then each real scene with every
+# integrator on CUDA, one process per scene under its own time limit, the rows printed as JSON
+# lines as they are measured, so that a slow compile or a failing part keeps what came before.
+# Usage: scripts/cuda-figures.sh OUT_DIR [SCENE:SECONDS ...]
+#   (default parts: hula-paper:80 flag:80 drape:80 hula:150; each part's log lands in OUT_DIR)
 set -uo pipefail
-out="${1:?usage: scripts/cuda-figures.sh OUT_DIR}"
+out="${1:?usage: scripts/cuda-figures.sh OUT_DIR [SCENE:SECONDS ...]}"
+shift
 mkdir -p "$out"
 python="${PYTHON:-python3}"
 export PYTHONUNBUFFERED=1
@@ -15,13 +18,31 @@ part() {  # part NAME SECONDS COMMAND...: run a command under a limit, its outpu
     local started=$SECONDS
     timeout "$limit" "$@" >"$out/$name.log" 2>&1
     echo "== $name: exit $? after $((SECONDS - started)) s"
-    tail -n 40 "$out/$name.log"
+    grep -v -e Warning -e '^ *"""' -e '^  *Save a field' "$out/$name.log" | tail -n 25
 }
 
-part agree 90 "$python" -m pytest -q -p no:cacheprovider tests/test_backends.py -k cuda -rs
-part reference 100 "$python" -m taichi_cloth bench --arch cuda --sizes 64,256,512 \
-    --integrators symplectic,implicit --seconds 0.5 --repeats 2 --json "$out/reference.json"
-part hula 190 "$python" -m taichi_cloth bench --arch cuda --scene hula --seconds 0.5 \
-    --repeats 2 --json "$out/hula.json"
-part scenes 160 "$python" -m taichi_cloth bench --arch cuda --scene hula-paper,flag,drape \
-    --seconds 0.3 --repeats 2 --json "$out/scenes.json"
+scene_rows='
+import json, sys
+import taichi as ti
+from taichi_cloth.runtime import start_taichi
+from taichi_cloth.studies.bench_scene import bench_scene_integrators
+start_taichi("cuda")
+assert ti.lang.impl.current_cfg().arch == ti.cuda, "no CUDA device: Taichi fell back"
+for row in bench_scene_integrators(sys.argv[1], 0.3, 2):
+    print(json.dumps(row), flush=True)
+'
+
+part agree 150 "$python" -m pytest -q -p no:cacheprovider --basetemp=/tmp/agree \
+    tests/test_backends.py -k cuda -rs
+for stats in /tmp/agree/*/cuda/stats.json; do  # what the GPU runs measured, per frame
+    [ -f "$stats" ] && "$python" -c '
+import json, sys
+frames = json.load(open(sys.argv[1]))["per_frame"]
+keys = ("self_intersections", "self_collision_pairs", "self_collision_separations", "max_strain")
+print(sys.argv[1], {k: [f[k] for f in frames][-6:] for k in keys if k in frames[0]})' "$stats"
+done
+for spec in "${@:-hula-paper:80 flag:80 drape:80 hula:150}"; do
+    for item in $spec; do
+        part "${item%%:*}" "${item##*:}" "$python" -c "$scene_rows" "${item%%:*}"
+    done
+done

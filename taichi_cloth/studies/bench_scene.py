@@ -4,6 +4,7 @@ reference sheet and the report)."""
 
 import statistics
 import time
+from collections.abc import Iterator
 
 import taichi as ti
 
@@ -133,18 +134,18 @@ def effect_cost(with_times: list, without_times: list) -> dict:
             "noise_us_per_substep": round(1e6 * noise, 3), "below_noise": below_noise}
 
 
-def bench_effects(scene_name: str, seconds: float, repeats: int) -> list[dict]:
+def bench_effects(scene_name: str, seconds: float, repeats: int) -> Iterator[dict]:
     """The cost of each effect: the scene with and without it (added with its defaults when the
     scene lacks it and can have it), in turns (``interleaved_seconds``), in microseconds per
     substep and nanoseconds per particle-substep; a cost within the noise is reported as such
-    (``effect_cost``)."""
+    (``effect_cost``). Each row is yielded when measured (a part cut short keeps its rows)."""
     base = scene_simulation(scene_name)
     base_rates = frame_rate(base, seconds, repeats)
     particles = base.model.particle_count
     size = f"{base.garment.columns}x{base.garment.rows}"
     integrator = base.scene.simulation.integrator
-    rows = [substep_row("scene", integrator, size, particles, base_rates,
-                        scene=scene_name, effects=base.effect_names)]
+    yield substep_row("scene", integrator, size, particles, base_rates,
+                      scene=scene_name, effects=base.effect_names)
     for name in (effect.name for effect in EFFECTS):
         declared = name in base.scene.effects
         try:
@@ -160,40 +161,37 @@ def bench_effects(scene_name: str, seconds: float, repeats: int) -> list[dict]:
         cost = effect_cost(with_times, without_times)
         per_particle = None if cost["below_noise"] else \
             round(1e3 * cost["cost_us_per_substep"] / particles, 3)
-        rows.append(substep_row("effect", integrator, size, particles,
-                                [1.0 / t for t in other_times], scene=scene_name, effect=name,
-                                declared_in_scene=declared,
-                                substeps_per_second_with=1.0 / statistics.median(with_times),
-                                substeps_per_second_without=1.0 / statistics.median(
-                                    without_times),
-                                cost_ns_per_particle_substep=per_particle, **cost))
-    return rows
+        yield substep_row("effect", integrator, size, particles,
+                          [1.0 / t for t in other_times], scene=scene_name, effect=name,
+                          declared_in_scene=declared,
+                          substeps_per_second_with=1.0 / statistics.median(with_times),
+                          substeps_per_second_without=1.0 / statistics.median(without_times),
+                          cost_ns_per_particle_substep=per_particle, **cost)
 
 
-def bench_scene_integrators(scene_name: str, seconds: float, repeats: int) -> list[dict]:
+def bench_scene_integrators(scene_name: str, seconds: float, repeats: int) -> Iterator[dict]:
     """The scene with every integrator: its own at the scene's step, the others at their
     ``dt = "auto"`` step; substeps and particle-substeps per second through ``advance_frame``
     and the wall seconds per simulated second that gives. An integrator with no stable auto
-    step (explicit Euler without dashpots) gets a row saying so."""
+    step (explicit Euler without dashpots) gets a row saying so. Each row is yielded when
+    measured."""
     from taichi_cloth.physics.integrators import INTEGRATORS
     shipped = scene_simulation(scene_name)
-    rows = []
     for name in INTEGRATORS:
         own = name == shipped.scene.simulation.integrator
         overrides = () if own else (f"simulation.integrator={name}", "simulation.dt=auto")
         try:
             simulation = shipped if own else scene_simulation(scene_name, overrides)
         except InputError as error:
-            rows.append({"benchmark": "scene-integrator", "scene": scene_name,
-                         "integrator": name, "shipped": False, "no_stable_step": str(error)})
+            yield {"benchmark": "scene-integrator", "scene": scene_name,
+                   "integrator": name, "shipped": False, "no_stable_step": str(error)}
             continue
         rates = frame_rate(simulation, seconds, repeats)
         dt = simulation.time_step.dt
-        rows.append(substep_row(
+        yield substep_row(
             "scene-integrator", name, f"{simulation.garment.columns}x{simulation.garment.rows}",
             simulation.model.particle_count, rates, scene=scene_name, shipped=own, dt=dt,
-            wall_seconds_per_simulated_second=1.0 / (statistics.median(rates) * dt)))
-    return rows
+            wall_seconds_per_simulated_second=1.0 / (statistics.median(rates) * dt))
 
 
 def bench_passes(scene_name: str, seconds: float, repeats: int) -> dict:
