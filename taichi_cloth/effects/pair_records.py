@@ -115,23 +115,26 @@ class PairRecords:
         return pair_side(x, self.pair_kind[k], self.pair_particles[k], self.model.real)
 
     @ti.func
-    def commit(self, x, serial: ti.template()):
-        """The positions x [m] of a finished step: every listed pair's side record brought to x
-        (``crossing_history.commit``); x becomes ``last_x``, and ``reference_x``, where the
-        pairs that the next build adds take their records, if the list still holds every pair
-        within the thickness there (``_measure_deformation``); if not, ``reference_x`` is the
-        step's start (the last ``last_x``), so a pair that came from beyond the reach through a
-        face within the step is seen to have crossed at the next step's end. On one thread when
-        ``serial``. (The build itself runs only in ``update``: inlined twice per step it
-        doubled the kernels' compile time.)"""
+    def commit_record(self, k, inside, height):
+        """Pair k's side record brought to the end of a step at which its closest points are
+        ``inside`` with signed ``height`` [m] (``crossing_history.commit``); the new record."""
+        record = crossing_history.commit(self.record(k), inside, height)
+        self.set_record(k, record)
+        return record
+
+    @ti.func
+    def keep_positions(self, x, serial: ti.template()):
+        """The positions x [m] of a finished step, every record committed to them
+        (``commit_record``): x becomes ``last_x``, and ``reference_x``, where the pairs that the
+        next build adds take their records, if the list still holds every pair within the
+        thickness there (``_measure_deformation``); if not, ``reference_x`` is the step's start
+        (the last ``last_x``), so a pair that came from beyond the reach through a face within
+        the step is seen to have crossed at the next step's end. On one thread when ``serial``.
+        (The build itself runs only in ``update``: inlined twice per step it doubled the
+        kernels' compile time.)"""
         ti.loop_config(serialize=True)
         for _ in range(1):
             self._measure_deformation(x, False)
-        if ti.static(serial):
-            ti.loop_config(serialize=True)
-        for k in range(self.pair_count[None]):
-            _share, inside, _normal, height, _offset = self.side(x, k)
-            self.set_record(k, crossing_history.commit(self.record(k), inside, height))
         if ti.static(serial):
             ti.loop_config(serialize=True)
         for i in range(self.model.particle_count):

@@ -21,8 +21,7 @@ tangentially to first order), so momentum is conserved and the energy balance ho
 A pair remembers which side of each other its primitives belong on (``crossing_history``): while
 its closest points stay inside (over the face; within both edges) d is signed, so a pair that
 has passed through itself is pushed back, not further through; and after every step
-(``apply``, the post step) a pair that crossed within it is put back on its side
-(``_separate_crossed``).
+(``apply``, the post step) a pair that crossed within it is put back on its side.
 
 Candidate pairs (``effects/candidate_pairs.py``): every pair within the reach, thickness +
 padding, in one compact list, rebuilt only when the cloth has deformed (its best rigid motion
@@ -96,7 +95,7 @@ class SelfCollision(Effect):
         self.reach = settings.thickness + self.padding  # m
         self.pairs = CandidatePairs(model, self.reach, self.padding)
         self.post_step = self  # ``apply``: the side records after every step
-        self.moved = ti.field(ti.i32, ())  # pairs a sweep of ``_separate_crossed`` put back (CPU)
+        self.moved = ti.field(ti.i32, ())  # pairs a sweep of ``apply`` put back (CPU)
         self.separations = ti.field(ti.i32, ())  # pairs put back since the start
         capacity = self.pairs.capacity
         # per evaluation: each pair's force on its first point, its blocks, its particles' shares
@@ -169,40 +168,36 @@ class SelfCollision(Effect):
 
     @ti.func
     def apply(self, state, t):
-        """After every step (``post_step``): the pairs' side records brought to its positions
-        (``CandidatePairs.commit``), then the pairs that crossed within it put back
-        (``_separate_crossed``)."""
-        self.pairs.commit(state.x, self.serial)
-        self._separate_crossed(state)
-
-    @ti.func
-    def _separate_crossed(self, state):
-        """The pairs that crossed within the step put back onto their own sides: a sweep over
-        the list in its order (``_separate``) of the pairs whose record says they crossed, then
-        up to ``SEPARATION_SWEEPS`` − 1 more of every pair inside and on the wrong side of its
-        record while the sweep before moved any (putting one pair back can push a neighbour
-        through: two diagonals of a tight fold take turns otherwise), on one thread in list
-        order (Gauss–Seidel, bit-reproducible) when the effect's loops are serial; on a GPU all
-        ``SEPARATION_SWEEPS`` sweeps in parallel (the moves added atomically)."""
+        """After every step (``post_step``): one sweep over the list that brings each pair's
+        side record to the step's end and puts back the pairs that crossed within it, then up
+        to ``SEPARATION_SWEEPS`` − 1 more of the pairs inside and on the wrong side of their
+        records while the sweep before moved any (putting one pair back can push a neighbour
+        through: two diagonals of a tight fold take turns otherwise), each pair in turn
+        (``_sweep_pair``); then the positions kept as the records' (``keep_positions``). On
+        one thread in list order (Gauss–Seidel, bit-reproducible) when the effect's loops are
+        serial; on a GPU each sweep in parallel, the moves added atomically (a pair may then
+        read a neighbour's move half done)."""
         if ti.static(self.serial):
             ti.loop_config(serialize=True)
             for sweep in range(SEPARATION_SWEEPS):
                 if sweep == 0 or self.moved[None] > 0:
                     self.moved[None] = 0
                     for k in range(self.pairs.pair_count[None]):
-                        self._separate(state, k, sweep == 0)
+                        self._sweep_pair(state, k, sweep == 0)
         else:
             for sweep in ti.static(range(SEPARATION_SWEEPS)):
                 for k in range(self.pairs.pair_count[None]):
-                    self._separate(state, k, ti.static(sweep == 0))
+                    self._sweep_pair(state, k, ti.static(sweep == 0))
+        self.pairs.keep_positions(state.x, self.serial)
 
     @ti.func
-    def _separate(self, state, k, crossed_only):
-        """Pair k, if it has crossed (by its record, or with ``crossed_only`` false also by
-        being inside and on the other side than its record's, σ·h < 0), moved back onto its side
-        (``SEPARATION`` of the thickness: the penalty, oriented by the record, does the rest
-        over the next steps without a jump that stretches the cloth), and its approach along
-        the normal stopped: the inelastic projection of Bridson, Fedkiw & Anderson (2002,
+    def _sweep_pair(self, state, k, first):
+        """Pair k in a sweep of ``apply``: in the ``first``, its record committed to the
+        positions (``commit_record``); then, if it has crossed (its record says so, or it is
+        inside with the other sign of height than its record's, σ·h < 0), moved back onto its
+        side (``SEPARATION`` of the thickness: the penalty, oriented by the record, does the
+        rest over the next steps without a jump that stretches the cloth), and its approach
+        along the normal stopped: the inelastic projection of Bridson, Fedkiw & Anderson (2002,
         §7.1) on the constraint C = σ·n·Σ_i b_i·x_i − SEPARATION·thickness (b the pair's shares,
         σ·n the normal of its side): x_i += λ·b_i·w_i·σn with λ = −C / Σ_i b_i²·w_i (w the
         inverse masses; pinned particles do not move), and the same for the velocities when
@@ -211,13 +206,14 @@ class SelfCollision(Effect):
         real = self.model.real
         inverse_mass = ti.static(self.model.particle_inv_mass)
         record = self.pairs.record(k)
-        crossed = crossing_history.is_crossed(record)
-        if (crossed and crossed_only) or (
-                not crossed_only and ti.abs(record) == crossing_history.INSIDE):
+        if first or ti.abs(record) == crossing_history.INSIDE:
             ids = self.pairs.pair_particles[k]
             share, inside, normal, height, _offset = self.pairs.side(state.x, k)
+            if first:
+                record = self.pairs.commit_record(k, inside, height)
             side = real(1.0) if record > 0 else real(-1.0)
-            if crossed or (inside and side * height < 0):
+            if crossing_history.is_crossed(record) or (
+                    ti.abs(record) == crossing_history.INSIDE and inside and side * height < 0):
                 weight = real(0.0)
                 approach = real(0.0)
                 for slot in ti.static(range(4)):
@@ -284,7 +280,7 @@ class SelfCollision(Effect):
         """Candidate pairs dropped since the start (0 unless the capacities of
         ``candidate_pairs`` are too small for the scene: then contacts can be missed), the list's
         builds since the start, its pairs at the last build, the pairs put back onto their sides
-        since the start (``_separate``), and the listed pairs whose records say they are
+        since the start (``_sweep_pair``), and the listed pairs whose records say they are
         crossed at the frame's end (0 unless the projection could not move one: every particle
         of it pinned)."""
         return {"self_collision_overflow": int(self.pairs.overflow[None]),
