@@ -14,7 +14,7 @@ from taichi_cloth.errors import InputError
 from taichi_cloth.output.checkpoint import (CHECKPOINT_NAME, Checkpoint, load_checkpoint,
                                             save_checkpoint, scene_fingerprint)
 from taichi_cloth.output.run import read_previous_stats
-from taichi_cloth.physics.simulation import Snapshot
+from taichi_cloth.physics.snapshot import Snapshot
 
 RESOLUTION = "cloth.resolution=[4, 4]"
 
@@ -33,7 +33,10 @@ def random_checkpoint(scene, seed=0) -> Checkpoint:
         dt=1.0 / 30.0 / 34.0, substeps_per_frame=34,
         integrator_memory={"guess": rng.standard_normal((16, 3)).astype(np.float32),
                            "velocity_change": rng.standard_normal((16, 3)),
-                           "counts": np.arange(5, dtype=np.int32)})
+                           "counts": np.arange(5, dtype=np.int32)},
+        effect_memory={"self_collision.found": rng.integers(-3, 99, (16, 4)).astype(np.int32),
+                       "self_collision.rotation": rng.standard_normal((3, 3)).astype(np.float32),
+                       "self_collision.committed": np.array(1, np.int32)})
     return Checkpoint(next_frame=7, snapshot=snapshot, retries=2,
                       fingerprint=scene_fingerprint(scene),
                       cg_iterations=rng.integers(1, 50, 12))
@@ -50,16 +53,19 @@ def test_round_trip_is_bit_for_bit(tmp_path, scene):
         expected, got = getattr(saved.snapshot, name), getattr(loaded.snapshot, name)
         assert got.dtype == expected.dtype
         assert got.tobytes() == expected.tobytes()
-    assert set(loaded.snapshot.integrator_memory) == set(saved.snapshot.integrator_memory)
-    for name, expected in saved.snapshot.integrator_memory.items():
-        got = loaded.snapshot.integrator_memory[name]
-        assert (got.dtype, got.shape) == (expected.dtype, expected.shape)
-        assert got.tobytes() == expected.tobytes()
+    for memory in ("integrator_memory", "effect_memory"):
+        expected_memory, loaded_memory = (getattr(c.snapshot, memory) for c in (saved, loaded))
+        assert set(loaded_memory) == set(expected_memory)
+        for name, expected in expected_memory.items():
+            got = loaded_memory[name]
+            assert (got.dtype, got.shape) == (expected.dtype, expected.shape)
+            assert got.tobytes() == expected.tobytes()
     np.testing.assert_array_equal(loaded.cg_iterations, saved.cg_iterations)
 
 
 def test_empty_integrator_memory_stays_empty(tmp_path, scene):
-    """Explicit integrators carry nothing between steps: no memory key appears from nowhere."""
+    """Explicit integrators (and effects without history) carry nothing between steps: no
+    memory key appears from nowhere."""
     saved = random_checkpoint(scene)
     bare = Checkpoint(saved.next_frame, Snapshot(saved.snapshot.positions,
                                                  saved.snapshot.velocities, saved.snapshot.dt,
@@ -67,7 +73,7 @@ def test_empty_integrator_memory_stays_empty(tmp_path, scene):
                       saved.retries, saved.fingerprint, np.zeros(0, dtype=np.int64))
     save_checkpoint(tmp_path, bare)
     loaded = load_checkpoint(tmp_path, scene)
-    assert loaded.snapshot.integrator_memory == {}
+    assert loaded.snapshot.integrator_memory == {} and loaded.snapshot.effect_memory == {}
     assert loaded.cg_iterations.size == 0
 
 

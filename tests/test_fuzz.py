@@ -18,7 +18,7 @@ from taichi_cloth.effects import EFFECTS
 from taichi_cloth.errors import InputError
 from taichi_cloth.output.checkpoint import (CHECKPOINT_NAME, Checkpoint, load_checkpoint,
                                             save_checkpoint, scene_fingerprint)
-from taichi_cloth.physics.simulation import Snapshot
+from taichi_cloth.physics.snapshot import Snapshot
 
 TABLES = [("scene", SceneInfo), ("simulation", SimulationConfig), ("cloth", ClothConfig),
           ("cloth.material", MaterialOverrides), ("body", BodyConfig), ("render", RenderConfig),

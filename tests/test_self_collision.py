@@ -14,7 +14,10 @@ from systems import assemble, energy_gradient
 from taichi_cloth.cli import main
 from taichi_cloth.cloth.garment import Garment
 from taichi_cloth.effects.self_collision import SEPARATION, SelfCollision, SelfCollisionSettings
+from taichi_cloth.physics.metrics import RunRecord
 from taichi_cloth.physics.model import Model
+from taichi_cloth.physics.settling import settle
+from taichi_cloth.physics.simulation import Simulation
 
 THICKNESS, K_HAT = 0.01, 1e4  # m, 1/s²
 MASS = np.array([0.1, 0.2, 0.3, 0.4, 0.5, 0.6])  # kg
@@ -245,17 +248,30 @@ def test_thickness_of_half_an_edge_or_more_is_one_line_exit_2(capsys):
     assert "effects.self_collision.thickness" in message and "\n" not in message
 
 
+FOLD = ("cloth.resolution=[12, 12]",)  # `fold` small: its halves meet at frame 13
+FOLD_FRAMES, FOLD_KEPT = 16, 13
+
+
 @pytest.fixture(scope="module")
 def fold_runs(tmp_path_factory):
-    """`fold` at 12 × 12 for 16 frames (its halves meet at frame 13), with and without
-    self-collision: the stats of each."""
-    stats = {}
-    for label, extra in (("on", []), ("off", ["--set", "effects.self_collision=false"])):
-        out = tmp_path_factory.mktemp(f"fold_{label}")
-        assert main(["simulate", "fold", "--quiet", "--frames", "16", "--set",
-                     "cloth.resolution=[12, 12]", "--out", str(out), *extra]) == 0
-        stats[label] = json.loads((out / "stats.json").read_text())
-    return stats
+    """`fold` for 16 frames with and without self-collision: the stats of each; with it also
+    the simulation, its state at frame 13 with what its effects carry (``snapshot(effects=
+    True)``, as a checkpoint keeps it) and the last frame's positions."""
+    simulation = Simulation.from_scene("fold", FOLD)
+    record = RunRecord()
+    settle(simulation, record)
+    kept = {}
+
+    def keep(frame, _metrics):
+        if frame == FOLD_KEPT:
+            kept["snapshot"] = simulation.snapshot(effects=True)
+
+    simulation.run(FOLD_FRAMES, keep, record)
+    out = tmp_path_factory.mktemp("fold_off")
+    assert main(["simulate", "fold", "--quiet", "--frames", str(FOLD_FRAMES), "--set", FOLD[0],
+                 "--out", str(out), "--set", "effects.self_collision=false"]) == 0
+    return {"on": simulation.stats(record), "off": json.loads((out / "stats.json").read_text()),
+            "simulation": simulation, "kept": kept["snapshot"], "last": simulation.positions()}
 
 
 def test_fold_never_passes_through_itself_and_does_without_self_collision(fold_runs):
@@ -265,6 +281,19 @@ def test_fold_never_passes_through_itself_and_does_without_self_collision(fold_r
     assert on["per_frame"][-1]["self_collision_overflow"] == 0
     assert on["max_strain"] < 0.1 and on["max_penetration"] < 0.004
     assert off["max_self_intersections"] > 0
+
+
+def test_fold_restored_from_its_snapshot_takes_the_very_same_steps(fold_runs):
+    """A checkpoint's snapshot of frame 13 (the halves met: pairs listed, sides recorded)
+    put back: frames 14 to 16 again end bit for bit where they ended, with the same counts
+    (without the effects' memory the list is built afresh at the restore: one build more)."""
+    simulation, kept, on = fold_runs["simulation"], fold_runs["kept"], fold_runs["on"]
+    assert kept.effect_memory["self_collision.found_count"].sum() > 0
+    simulation.restore(kept)
+    again = simulation.run(FOLD_FRAMES, record=RunRecord(), first_frame=FOLD_KEPT + 1)
+    np.testing.assert_array_equal(simulation.positions(), fold_runs["last"])
+    for name in ("self_collision_builds", "self_collision_separations", "self_collision_pairs"):
+        assert again.frames[-1].as_dict()[name] == on["per_frame"][-1][name], name
 
 
 def test_pile_folds_onto_itself_on_the_floor_without_passing_through(tmp_path):

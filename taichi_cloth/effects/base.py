@@ -35,7 +35,8 @@ Genesis' ``force_fields.py``). What an effect declares:
 - ``back_up()``, ``roll_back()`` and ``forget_history()``: what it carries from step to step
   besides the state (self-collision's side records), kept at the start of a frame, put back
   when the frame is redone, and dropped when the positions are set from outside; nothing by
-  default. ``repair(state)``: mend a frame's end that crossed itself (self-collision).
+  default. ``memory()`` and ``restore_memory(memory)``: the same as host arrays, for a
+  checkpoint. ``repair(state)``: mend a frame's end that crossed itself (self-collision).
 
 Every value an effect reads that is fixed for the run is baked in at compile time, as
 ``model.real(value)`` so that it keeps the model's precision; the time t is a kernel argument.
@@ -86,6 +87,14 @@ class Effect:
 
     def forget_history(self) -> None:
         """Drop what the effect carries from step to step: nothing here."""
+
+    def memory(self) -> dict:
+        """Host copies of what the effect carries from step to step (NumPy arrays by name),
+        for a checkpoint: none here."""
+        return {}
+
+    def restore_memory(self, memory: dict) -> None:
+        """Put back what ``memory`` returned (a resumed run takes the very same steps)."""
 
     def repair(self, state) -> None:
         """Mend a frame's end ``state`` that the cloth crossed itself in: nothing here."""

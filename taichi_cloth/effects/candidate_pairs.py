@@ -85,6 +85,31 @@ class CandidatePairs(PairRecords):
         self.rotation.from_numpy(np.eye(3))
         self.rebuild_asked[None] = 1
 
+    # what the list carries from step to step: the finds with their records (the list and the
+    # entries follow from them), the positions the records and the rebuild test refer to
+    MEMORY_FIELDS = ("found_count", "found", "found_record", "reference_x", "last_x",
+                     "built_offset", "centroid", "rotation", "committed", "rebuild_asked",
+                     "rebuilds", "overflow")
+
+    def memory(self) -> dict:
+        """Host copies of ``MEMORY_FIELDS`` by name (a checkpoint)."""
+        return {name: getattr(self, name).to_numpy() for name in self.MEMORY_FIELDS}
+
+    def restore_memory(self, memory: dict) -> None:
+        """Put back what ``memory`` returned, and the list and entries gathered from its finds
+        as the build gathered them (the same pairs in the same order)."""
+        for name in self.MEMORY_FIELDS:
+            getattr(self, name).from_numpy(memory[name])
+        self._relist()
+        self.overflow.from_numpy(memory["overflow"])  # counted once, by the run that listed
+
+    @ti.kernel
+    def _relist(self):
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            self._gather_found()
+            self._list_entries()
+
     def ask_rebuild(self) -> None:
         """Rebuild the list at the next ``update`` (``bench`` times the build)."""
         self.rebuild_asked[None] = 1

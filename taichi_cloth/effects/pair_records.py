@@ -26,7 +26,7 @@ class PairRecords:
     def allocate_records(self) -> None:
         """The records beside the finds of ``found``, the rows before a rebuild (carried over)
         and at a redone frame's start (``back_up``), the positions [m] that new pairs take their
-        records at and those of the last finished step (``commit``), and whether there was
+        records at and those of the last finished step (``keep_positions``), and whether there was
         one."""
         rows, row_count = self.found.shape, self.found_count.shape
         self.found_record = ti.field(ti.i32, rows)

@@ -264,6 +264,13 @@ class SelfCollision(Effect):
     def forget_history(self) -> None:
         self.pairs.forget()
 
+    def memory(self) -> dict:
+        return {**self.pairs.memory(), "separations": self.separations.to_numpy()}
+
+    def restore_memory(self, memory: dict) -> None:
+        self.pairs.restore_memory(memory)
+        self.separations.from_numpy(memory["separations"])
+
     def repair(self, state) -> None:
         """A frame's end with pairs of triangles through each other: the list brought up to
         date there (a build if the cloth has deformed past it, its new pairs with their records

@@ -2,7 +2,8 @@
 
 When a run is interrupted (Ctrl-C, SIGTERM) the command writes ``checkpoint.npz`` beside
 ``stats.json``: positions and velocities after the last whole frame, what the integrator carries
-between steps (``Integrator.memory``: the implicit solver's warm start), the time step in force
+between steps (``Integrator.memory``: the implicit solver's warm start) and what the effects carry
+(``Effect.memory``: self-collision's candidate pairs and side records), the time step in force
 (the guard may have halved it), the retries so far and a fingerprint of the validated scene. ``--resume``
 loads it, refuses it if the scene (file or overrides) or the outputs asked for (frame size,
 video, mesh formats) changed, and continues from the next frame. It trusts nothing it reads: the
@@ -24,10 +25,10 @@ import numpy as np
 from taichi_cloth.errors import InputError
 from taichi_cloth.output.files import atomic_path
 from taichi_cloth.config.scene import Scene
-from taichi_cloth.physics.simulation import Snapshot
+from taichi_cloth.physics.snapshot import Snapshot
 
 CHECKPOINT_NAME = "checkpoint.npz"
-FORMAT_VERSION = 2
+FORMAT_VERSION = 3  # 3: the effects' memory (self-collision's pairs and records)
 
 
 def scene_fingerprint(scene: Scene) -> str:
@@ -38,7 +39,7 @@ def scene_fingerprint(scene: Scene) -> str:
 @dataclass(frozen=True)
 class Checkpoint:
     """next_frame: the first frame still to simulate; snapshot: the simulation at its start
-    (``physics.simulation.Snapshot``: state, time step in force, integrator memory); retries so
+    (``physics.snapshot.Snapshot``: state, time step, integrator and effect memory); retries so
     far; fingerprint of the scene; cg_iterations: the CG iterations of every step so far
     (implicit); outputs: what the run writes besides stats.json (``outputs_fingerprint``)."""
 
@@ -67,6 +68,7 @@ def checksum(arrays: dict) -> str:
 
 
 MEMORY_PREFIX = "memory."  # npz keys of the integrator's memory
+EFFECT_PREFIX = "effect."  # npz keys of the effects' memory (``Snapshot.effect_memory``)
 SNAPSHOT_KEYS = ("positions", "velocities", "dt", "substeps_per_frame")
 
 
@@ -79,6 +81,7 @@ def save_checkpoint(directory: Path, checkpoint: Checkpoint) -> None:
                   outputs=checkpoint.outputs, version=FORMAT_VERSION)
     arrays.update({MEMORY_PREFIX + name: value
                    for name, value in snapshot.integrator_memory.items()})
+    arrays.update({EFFECT_PREFIX + name: value for name, value in snapshot.effect_memory.items()})
     arrays = {name: np.asarray(value) for name, value in arrays.items()}
     np.savez(buffer, checksum=checksum(arrays), **arrays)
     with atomic_path(Path(directory) / CHECKPOINT_NAME) as temporary:
@@ -130,7 +133,9 @@ def checkpoint_from_arrays(arrays: dict) -> Checkpoint:
         positions=arrays["positions"], velocities=arrays["velocities"], dt=float(arrays["dt"]),
         substeps_per_frame=int(arrays["substeps_per_frame"]),
         integrator_memory={key[len(MEMORY_PREFIX):]: value for key, value in arrays.items()
-                           if key.startswith(MEMORY_PREFIX)})
+                           if key.startswith(MEMORY_PREFIX)},
+        effect_memory={key[len(EFFECT_PREFIX):]: value for key, value in arrays.items()
+                       if key.startswith(EFFECT_PREFIX)})
     return Checkpoint(next_frame=int(arrays["next_frame"]), snapshot=snapshot,
                       retries=int(arrays["retries"]), fingerprint=str(arrays["fingerprint"]),
                       cg_iterations=arrays["cg_iterations"], outputs=str(arrays["outputs"]))
@@ -146,8 +151,8 @@ def checkpoint_problem(checkpoint: Checkpoint, particle_count: int | None) -> st
     if not (np.isfinite(snapshot.positions).all() and np.isfinite(snapshot.velocities).all()):
         return "holds a non-finite state"
     if any(not np.isfinite(np.asarray(value, float)).all()
-           for value in snapshot.integrator_memory.values()):
-        return "holds a non-finite solver memory"
+           for value in (*snapshot.integrator_memory.values(), *snapshot.effect_memory.values())):
+        return "holds a non-finite solver or effect memory"
     if checkpoint.next_frame < 1 or checkpoint.retries < 0 or snapshot.substeps_per_frame < 1 \
             or not (math.isfinite(snapshot.dt) and snapshot.dt > 0):
         return (f"holds an impossible frame, step or count (next frame {checkpoint.next_frame}, "

@@ -166,7 +166,7 @@ def run_in_folder(scene: Scene, frame_count: int, folder: OwnedFolder, quiet: bo
                          simulation.state_in.v.to_numpy())
             seconds["render"] += rendered - started
             seconds["export"] += time.perf_counter() - rendered
-            finished.update(frame=frame, snapshot=simulation.snapshot())
+            finished.update(frame=frame, snapshot=simulation.snapshot(effects=True))
             progress.update(t)
 
         try:

@@ -7,7 +7,7 @@ motion the rig writes (``physics.control``), the scene's effects (``effects/``),
 when it pays (``physics.packed_grid``), the force evaluation (``physics.forces``), the integrator
 (``physics.integrators``), the states, and the time step (``physics.timestep``). The time step
 changes in one place (``set_time_step``); ``snapshot``/``restore`` copy the state and what the
-integrator carries to the host and back (checkpoints, repeated runs).
+integrator and effects carry to the host and back (``physics.snapshot``: checkpoints, reruns).
 
 Per frame the rig poses the body (capsules, pinned waist) across the frame, then the integrator
 advances ``state_in → state_out`` substep by substep in kernel launches of several substeps; the
@@ -22,7 +22,6 @@ import dataclasses
 import math
 import sys
 import time
-from dataclasses import dataclass
 
 import numpy as np
 import taichi as ti
@@ -41,25 +40,13 @@ from taichi_cloth.physics.metrics import (FrameMetrics, RunRecord, largest_stret
 from taichi_cloth.physics.model import Model
 from taichi_cloth.physics.packed_grid import packed_grid_for
 from taichi_cloth.physics.rig import BodyRig
+from taichi_cloth.physics.snapshot import Snapshot
 from taichi_cloth.physics.timestep import TimeStep, choose_time_step
 from taichi_cloth.runtime import start_taichi
 
 REDO_HALVINGS = 2  # a frame that tunnelled or overstretched is redone at dt/2, then dt/4
 REDO_GAIN = 0.9  # a halving that leaves the strain above this fraction of the try before it
 # shows a strain the step does not make (a tight garment): the frame is not halved again
-
-
-@dataclass(frozen=True)
-class Snapshot:
-    """Host copies of what a run needs to go on exactly as it would have: positions [m] and
-    velocities [m/s] (N, 3), the step dt [s] and substeps per frame in force, and what the
-    integrator carries between steps (``Integrator.memory``)."""
-
-    positions: np.ndarray
-    velocities: np.ndarray
-    dt: float
-    substeps_per_frame: int
-    integrator_memory: dict
 
 
 class Simulation:
@@ -162,21 +149,32 @@ class Simulation:
         self.forces.evaluate(self.state_in.x, self.state_in.v, 0.0, self.force_scratch)
         return self.force_scratch.to_numpy().astype(np.float64)
 
-    def snapshot(self) -> Snapshot:
-        """Host copies of the current state, time step and integrator memory."""
+    def snapshot(self, effects: bool = False) -> Snapshot:
+        """Host copies of the current state, time step and integrator memory; with
+        ``effects`` also what the effects carry (a run's checkpoint: resumed, it goes on
+        bit for bit)."""
+        effect_memory = {f"{effect.name}.{key}": value for effect in self.effects
+                         for key, value in effect.memory().items()} if effects else {}
         return Snapshot(positions=self.positions(),
                         velocities=self.state_in.v.to_numpy().astype(np.float64),
                         dt=self.time_step.dt, substeps_per_frame=self.time_step.substeps_per_frame,
-                        integrator_memory=self.integrator.memory())
+                        integrator_memory=self.integrator.memory(), effect_memory=effect_memory)
 
     def restore(self, snapshot: Snapshot) -> None:
-        """Put a ``snapshot`` back: the next frame continues exactly from it."""
+        """Put a ``snapshot`` back: the next frame continues exactly from it (the effects'
+        history from scratch where it holds none)."""
         real = self.model.numpy_real
         self.state_in.x.from_numpy(snapshot.positions.astype(real))
         self.state_in.v.from_numpy(snapshot.velocities.astype(real))
         self.set_time_step(snapshot.dt, snapshot.substeps_per_frame)
         self.integrator.restore_memory(snapshot.integrator_memory)
         self.forget_crossings()
+        for effect in self.effects:
+            prefix = f"{effect.name}."
+            memory = {key[len(prefix):]: value for key, value in snapshot.effect_memory.items()
+                      if key.startswith(prefix)}
+            if memory:
+                effect.restore_memory(memory)
 
     def forget_crossings(self) -> None:
         """The positions were set from outside: crossings counted afresh, effects' history gone."""
