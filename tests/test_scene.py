@@ -18,9 +18,10 @@ REPO = Path(__file__).resolve().parent.parent
 
 
 # Scenes whose runs another test makes (each compile of self-collision costs seconds): fold runs
-# with and without self-collision in tests/test_self_collision.py, mocap in tests/test_mocap.py,
-# hilo (a mesh file: cloth.resolution does not shrink it) in tests/test_mesh_garment.py.
-RUN_ELSEWHERE = {"fold", "mocap", "hilo"}
+# with and without self-collision and pile for 30 frames in tests/test_self_collision.py, mocap
+# in tests/test_mocap.py, hilo (a mesh file: cloth.resolution does not shrink it) in
+# tests/test_mesh_garment.py.
+RUN_ELSEWHERE = {"fold", "pile", "mocap", "hilo"}
 
 
 def test_scenes_run_elsewhere_are_shipped():
