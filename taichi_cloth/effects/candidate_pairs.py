@@ -28,8 +28,7 @@ import numpy as np
 import taichi as ti
 
 from taichi_cloth.effects.pair_records import PairRecords
-from taichi_cloth.effects.proximity import (EDGE_EDGE, VERTEX_TRIANGLE, edge_edge_offset,
-                                            vertex_triangle_offset)
+from taichi_cloth.effects.proximity import EDGE_EDGE, VERTEX_TRIANGLE
 from taichi_cloth.effects.spatial_hash import BoxGrid
 from taichi_cloth.uploads import upload
 
@@ -263,9 +262,8 @@ class CandidatePairs(PairRecords):
                     if (grid.lower[t] <= x[i_p]).all() and (x[i_p] <= grid.upper[t]).all():
                         corners = self.corners[t]
                         if (corners != i_p).all():
-                            _, offset = vertex_triangle_offset(x, i_p, corners, self.model.real)
-                            if offset.norm() <= self.model.real(self.reach):
-                                self._find(i_p, t, self._carried_record(i_p, t, VERTEX_TRIANGLE))
+                            self._consider(x, i_p, t, ti.Vector([i_p, corners[0], corners[1],
+                                                                 corners[2]]), VERTEX_TRIANGLE)
         self._keep_crossed(i_p)
 
     @ti.func
@@ -295,11 +293,8 @@ class CandidatePairs(PairRecords):
                             other_ends = self.ends[other]
                             if other_ends[0] != ends[0] and other_ends[0] != ends[1] \
                                     and other_ends[1] != ends[0] and other_ends[1] != ends[1]:
-                                _, _, offset = edge_edge_offset(x, ends, other_ends,
-                                                                self.model.real)
-                                if offset.norm() <= self.model.real(self.reach):
-                                    self._find(owner, other,
-                                               self._carried_record(owner, other, EDGE_EDGE))
+                                self._consider(x, owner, other, ti.Vector(
+                                    [ends[0], ends[1], other_ends[0], other_ends[1]]), EDGE_EDGE)
         self._keep_crossed(owner)
 
     @ti.func

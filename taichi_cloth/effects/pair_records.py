@@ -15,8 +15,8 @@ The host class provides ``model``, ``found``/``found_count`` (the walks' rows), 
 import taichi as ti
 
 from taichi_cloth.effects import crossing_history
-from taichi_cloth.effects.proximity import (VERTEX_TRIANGLE, edge_edge_pair_side, pair_side,
-                                            vertex_triangle_pair_side)
+from taichi_cloth.effects.proximity import (VERTEX_TRIANGLE, edge_edge_geometry, pair_side,
+                                            vertex_triangle_geometry)
 
 
 @ti.data_oriented
@@ -58,25 +58,47 @@ class PairRecords:
         self.found_count[owner] = 0
 
     @ti.func
-    def _carried_record(self, owner, other, kind: ti.template()):
-        """The side record of the pair of ``kind`` that walk ``owner`` finds as item ``other``:
-        the one it held before this rebuild, or for a new pair the one it would have had at the
-        last finished step at which the list was whole (``reference_x``;
-        ``crossing_history.UNKNOWN`` before the first step)."""
+    def _held_record(self, owner, other):
+        """(the side record that walk ``owner``'s item ``other`` held before this rebuild, or
+        ``crossing_history.UNKNOWN``; whether it was held)."""
         record = crossing_history.UNKNOWN
         held = 0
         for n in range(self.previous_count[owner]):
             if self.previous_found[owner, n] == other:
                 record = self.previous_record[owner, n]
                 held = 1
-        if not held and self.committed[None]:
-            _kind, ids = self._pair_of(owner, other)
-            side = ti.static(vertex_triangle_pair_side if kind == VERTEX_TRIANGLE
-                             else edge_edge_pair_side)
-            _share, inside, _normal, height, _offset = side(self.reference_x, ids,
-                                                            self.model.real)
-            record = crossing_history.commit(crossing_history.UNKNOWN, inside, height)
-        return record
+        return record, held
+
+    @ti.func
+    def _consider(self, x, owner, other, ids, kind: ti.template()):
+        """Walk ``owner``'s candidate ``other``, the pair of ``kind`` and particles ``ids``: into
+        the row if within the reach at x, with its side record: the one it held before this
+        rebuild, or for a new pair the one it would have had at the last finished step at which
+        the list was whole (``reference_x``; ``crossing_history.UNKNOWN`` before the first
+        step). One inlined closest-point computation serves both positions (a loop of two
+        rounds at run time: each copy of it costs compile time in every kernel that builds)."""
+        geometry = ti.static(vertex_triangle_geometry if kind == VERTEX_TRIANGLE
+                             else edge_edge_geometry)
+        new = 0
+        for at_reference in range(2):
+            if at_reference == 0 or new:
+                first, second, third, fourth = x[ids[0]], x[ids[1]], x[ids[2]], x[ids[3]]
+                if at_reference:
+                    first, second, third, fourth = (self.reference_x[ids[0]],
+                                                    self.reference_x[ids[1]],
+                                                    self.reference_x[ids[2]],
+                                                    self.reference_x[ids[3]])
+                _share, inside, _normal, height, offset = geometry(first, second, third, fourth,
+                                                                   self.model.real)
+                if at_reference:
+                    self._find(owner, other, crossing_history.commit(crossing_history.UNKNOWN,
+                                                                     inside, height))
+                elif offset.norm() <= self.model.real(self.reach):
+                    record, held = self._held_record(owner, other)
+                    if not held and self.committed[None]:
+                        new = 1
+                    else:
+                        self._find(owner, other, record)
 
     @ti.func
     def _keep_crossed(self, owner):

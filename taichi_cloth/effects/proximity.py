@@ -66,29 +66,13 @@ def closest_between_segments(a, b, c, d, real: ti.template()):
 
 
 @ti.func
-def vertex_triangle_offset(x, i_p, corners, real: ti.template()):
-    """(barycentric weights of the point of the triangle of particles ``corners`` closest to
-    particle i_p, the particle minus that point [m]), positions x."""
-    a, b, c = x[corners[0]], x[corners[1]], x[corners[2]]
-    weights = closest_on_triangle(x[i_p], a, b, c, real)
-    return weights, x[i_p] - (weights[0] * a + weights[1] * b + weights[2] * c)
-
-
-@ti.func
-def edge_edge_offset(x, first, second, real: ti.template()):
-    """(s, u, the first edge's closest point minus the second's [m]) of two edges given by
-    their particles, positions x."""
-    a, b, c, d = x[first[0]], x[first[1]], x[second[0]], x[second[1]]
-    s, u = closest_between_segments(a, b, c, d, real)
-    return s, u, (a + s * (b - a)) - (c + u * (d - c))
-
-
-@ti.func
-def vertex_triangle_side(x, corners, weights, offset, real: ti.template()):
-    """Where a vertex is against a triangle of particles ``corners`` (``vertex_triangle_offset``'s
-    weights and offset): (whether its closest point lies inside the face, every weight > 0, as 1 or 0; the
-    face's unit normal (b − a)×(c − a)/|…|, 0 for a degenerate triangle; the offset along it [m])."""
-    a, b, c = x[corners[0]], x[corners[1]], x[corners[2]]
+def vertex_triangle_geometry(p, a, b, c, real: ti.template()):
+    """Point p against triangle (a, b, c) [m]: (the shares (1, −w_a, −w_b, −w_c) of the offset,
+    w the barycentric weights of the triangle's point closest to p; whether that point lies
+    inside the face, every weight > 0, as 1 or 0; the face's unit normal (b − a)×(c − a)/|…|,
+    0 for a degenerate triangle; the offset along it [m]; the offset, p minus that point [m])."""
+    weights = closest_on_triangle(p, a, b, c, real)
+    offset = p - (weights[0] * a + weights[1] * b + weights[2] * c)
     area_normal = (b - a).cross(c - a)
     size = area_normal.norm()
     normal = ti.Vector.zero(real, 3)
@@ -97,17 +81,19 @@ def vertex_triangle_side(x, corners, weights, offset, real: ti.template()):
     inside = 0
     if size > 0 and (weights > 0).all():
         inside = 1
-    return inside, normal, offset.dot(normal)
+    share = ti.Vector([1.0, -weights[0], -weights[1], -weights[2]], real)
+    return share, inside, normal, offset.dot(normal), offset
 
 
 @ti.func
-def edge_edge_side(x, first, second, s, u, offset, real: ti.template()):
-    """Where two edges are against each other (``edge_edge_offset``'s s, u and offset): (whether
-    both closest points lie inside their edges, 0 < s, u < 1, the edges not parallel, as 1
-    or 0; the unit
-    normal (b − a)×(d − c)/|…| of the first edge (a, b) and second (c, d), 0 when parallel; the
-    offset along it [m])."""
-    a, b, c, d = x[first[0]], x[first[1]], x[second[0]], x[second[1]]
+def edge_edge_geometry(a, b, c, d, real: ti.template()):
+    """Edge (a, b) against edge (c, d) [m], closest points a + s·(b − a) and c + u·(d − c): (the
+    shares (1 − s, s, u − 1, −u) of the offset; whether both closest points lie inside their
+    edges, 0 < s, u < 1, the edges not parallel, as 1 or 0; the unit normal
+    (b − a)×(d − c)/|…|, 0 when parallel; the offset along it [m]; the offset, the first
+    closest point minus the second [m])."""
+    s, u = closest_between_segments(a, b, c, d, real)
+    offset = (a + s * (b - a)) - (c + u * (d - c))
     first_axis, second_axis = b - a, d - c
     crossing = first_axis.cross(second_axis)
     size = crossing.norm()
@@ -118,39 +104,22 @@ def edge_edge_side(x, first, second, s, u, offset, real: ti.template()):
     inside = 0
     if not parallel and 0 < s < 1 and 0 < u < 1:
         inside = 1
-    return inside, normal, offset.dot(normal)
+    return ti.Vector([1 - s, s, u - 1, -u], real), inside, normal, offset.dot(normal), offset
 
 
 @ti.func
 def pair_side(x, kind, ids, real: ti.template()):
     """The pair of ``kind`` and particles ``ids`` at positions x: (its four particles' shares
-    of the offset between its closest points, (1, −w_a, −w_b, −w_c) or (1 − s, s, u − 1,
-    −u); whether its closest points are inside; its unit normal; the offset along it [m];
-    the offset [m]: the first point minus the second) (``vertex_triangle_side``,
-    ``edge_edge_side``)."""
+    of the offset between its closest points; whether its closest points are inside; its unit
+    normal; the offset along it [m]; the offset [m]: the first point minus the second)
+    (``vertex_triangle_geometry``, ``edge_edge_geometry``)."""
     share, inside, normal = ti.Vector.zero(real, 4), 0, ti.Vector.zero(real, 3)
     height, offset = real(0.0), ti.Vector.zero(real, 3)
+    first, second, third, fourth = x[ids[0]], x[ids[1]], x[ids[2]], x[ids[3]]
     if kind == VERTEX_TRIANGLE:
-        share, inside, normal, height, offset = vertex_triangle_pair_side(x, ids, real)
+        share, inside, normal, height, offset = vertex_triangle_geometry(first, second, third,
+                                                                         fourth, real)
     else:
-        share, inside, normal, height, offset = edge_edge_pair_side(x, ids, real)
+        share, inside, normal, height, offset = edge_edge_geometry(first, second, third, fourth,
+                                                                   real)
     return share, inside, normal, height, offset
-
-
-@ti.func
-def vertex_triangle_pair_side(x, ids, real: ti.template()):
-    """``pair_side`` of vertex ids[0] and the triangle of ids[1:]."""
-    corners = ti.Vector([ids[1], ids[2], ids[3]])
-    weights, offset = vertex_triangle_offset(x, ids[0], corners, real)
-    inside, normal, height = vertex_triangle_side(x, corners, weights, offset, real)
-    return ti.Vector([1.0, -weights[0], -weights[1], -weights[2]], real), inside, normal, \
-        height, offset
-
-
-@ti.func
-def edge_edge_pair_side(x, ids, real: ti.template()):
-    """``pair_side`` of the edges (ids[0], ids[1]) and (ids[2], ids[3])."""
-    first, second = ti.Vector([ids[0], ids[1]]), ti.Vector([ids[2], ids[3]])
-    s, u, offset = edge_edge_offset(x, first, second, real)
-    inside, normal, height = edge_edge_side(x, first, second, s, u, offset, real)
-    return ti.Vector([1 - s, s, u - 1, -u], real), inside, normal, height, offset
