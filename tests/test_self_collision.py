@@ -323,36 +323,48 @@ def test_pile_folds_onto_itself_on_the_floor_without_passing_through(tmp_path):
     assert footprint < 0.6  # a metre of fabric in under 0.6 m: folded onto itself
 
 
-def closest_distance_point_triangle(p, a, b, c) -> float:
-    """Distance from p to triangle (a, b, c): to its plane where the projection falls inside,
-    else to the nearest of its sides (an oracle independent of the effect's Voronoi regions)."""
+def dot(u, v):
+    return np.sum(u * v, axis=-1)
+
+
+def closest_distance_point_triangle(p, a, b, c):
+    """Distance from p to triangle (a, b, c), points (..., 3) over any leading axes: to its plane
+    where the projection falls inside, else to the nearest of its sides (an oracle independent
+    of the effect's Voronoi regions)."""
     normal = np.cross(b - a, c - a)
-    normal /= np.linalg.norm(normal)
-    projected = p - ((p - a) @ normal) * normal
-    inside = all(np.cross(q1 - q0, projected - q0) @ normal >= 0
-                 for q0, q1 in ((a, b), (b, c), (c, a)))
-    if inside:
-        return abs((p - a) @ normal)
-    return min(closest_distance_point_segment(p, q0, q1) for q0, q1 in ((a, b), (b, c), (c, a)))
+    normal = normal / np.linalg.norm(normal, axis=-1, keepdims=True)
+    height = dot(p - a, normal)
+    projected = p - height[..., None] * normal
+    sides = ((a, b), (b, c), (c, a))
+    inside = np.all([dot(np.cross(q1 - q0, projected - q0), normal) >= 0 for q0, q1 in sides],
+                    axis=0)
+    nearest_side = np.min([closest_distance_point_segment(p, q0, q1) for q0, q1 in sides], axis=0)
+    return np.where(inside, np.abs(height), nearest_side)[()]
 
 
-def closest_distance_point_segment(p, a, b) -> float:
-    t = np.clip((p - a) @ (b - a) / ((b - a) @ (b - a)), 0.0, 1.0)
-    return float(np.linalg.norm(p - (a + t * (b - a))))
+def closest_distance_point_segment(p, a, b):
+    t = np.clip(dot(p - a, b - a) / dot(b - a, b - a), 0.0, 1.0)
+    return np.linalg.norm(p - (a + t[..., None] * (b - a)), axis=-1)
 
 
-def closest_distance_segments(a, b, c, d) -> float:
-    """Distance between segments ab and cd: the interior stationary point of |P(s) − Q(u)|²
-    when it lies in the unit square, else the smallest of the four end-to-segment distances."""
+def closest_distance_segments(a, b, c, d):
+    """Distance between segments ab and cd, points (..., 3) over any leading axes: the interior
+    stationary point of |P(s) − Q(u)|² (Cramer's rule) when it lies in the unit square, else the
+    smallest of the four end-to-segment distances."""
     candidates = [closest_distance_point_segment(a, c, d), closest_distance_point_segment(b, c, d),
                   closest_distance_point_segment(c, a, b), closest_distance_point_segment(d, a, b)]
     d1, d2, r = b - a, d - c, a - c
-    matrix = np.array([[d1 @ d1, -(d1 @ d2)], [-(d1 @ d2), d2 @ d2]])
-    if abs(np.linalg.det(matrix)) > 1e-14:
-        s, u = np.linalg.solve(matrix, [-(d1 @ r), d2 @ r])
-        if 0 <= s <= 1 and 0 <= u <= 1:
-            candidates.append(float(np.linalg.norm(a + s * d1 - (c + u * d2))))
-    return min(candidates)
+    m11, m12, m22 = dot(d1, d1), -dot(d1, d2), dot(d2, d2)
+    right_s, right_u = -dot(d1, r), dot(d2, r)
+    determinant = m11 * m22 - m12 * m12
+    regular = np.abs(determinant) > 1e-14
+    safe = np.where(regular, determinant, 1.0)
+    s = (right_s * m22 - m12 * right_u) / safe
+    u = (m11 * right_u - m12 * right_s) / safe
+    interior = regular & (0 <= s) & (s <= 1) & (0 <= u) & (u <= 1)
+    stationary = np.linalg.norm(a + s[..., None] * d1 - (c + u[..., None] * d2), axis=-1)
+    candidates.append(np.where(interior, stationary, np.inf))
+    return np.min(candidates, axis=0)[()]
 
 
 @functools.cache
@@ -408,23 +420,26 @@ def test_the_candidate_list_holds_exactly_the_pairs_within_the_reach(columns, si
     effect.pairs.ask_rebuild()
     forces.evaluate(state.x, state.v, 0.0, out)
     reach = effect.reach
-    garment = model.garment
-    expected, borderline = set(), 0
-    for p in range(len(x)):
-        for corners in garment.triangles:
-            if p not in corners:
-                distance = closest_distance_point_triangle(x[p], *x[corners])
-                borderline += abs(distance - reach) < 1e-9
-                if distance <= reach:
-                    expected.add((0, (p, *(int(c) for c in corners))))
-    edges = garment.edges
-    for e in range(len(edges)):
-        for f in range(e + 1, len(edges)):
-            if not set(edges[e]) & set(edges[f]):
-                distance = closest_distance_segments(*x[edges[e]], *x[edges[f]])
-                borderline += abs(distance - reach) < 1e-9
-                if distance <= reach:
-                    expected.add((1, (*(int(i) for i in edges[e]), *(int(i) for i in edges[f]))))
+    triangles, edges = model.garment.triangles, model.garment.edges
+    vertex, triangle = (index.ravel() for index in np.indices((len(x), len(triangles))))
+    apart = (triangles[triangle] != vertex[:, None]).all(axis=1)  # not a corner of it
+    vertex, triangle = vertex[apart], triangle[apart]
+    corners = triangles[triangle]
+    vertex_distance = closest_distance_point_triangle(x[vertex], *(x[corners[:, k]]
+                                                                   for k in range(3)))
+    first, second = np.triu_indices(len(edges), 1)
+    apart = (edges[first][:, :, None] != edges[second][:, None, :]).all(axis=(1, 2))
+    first, second = first[apart], second[apart]  # every two edges that share no particle
+    edge_distance = closest_distance_segments(*(x[edges[first][:, k]] for k in range(2)),
+                                              *(x[edges[second][:, k]] for k in range(2)))
+    borderline = np.sum(np.abs(vertex_distance - reach) < 1e-9) + \
+        np.sum(np.abs(edge_distance - reach) < 1e-9)
+    near = vertex_distance <= reach
+    expected = {(0, (int(p), *(int(c) for c in triangle_corners)))
+                for p, triangle_corners in zip(vertex[near], corners[near])}
+    near = edge_distance <= reach
+    expected |= {(1, (*(int(i) for i in edges[e]), *(int(i) for i in edges[f])))
+                 for e, f in zip(first[near], second[near])}
     assert borderline == 0
     assert len(expected) > 100  # the fold brings the layers within reach all over
     assert listed_pairs(effect.pairs) == expected
