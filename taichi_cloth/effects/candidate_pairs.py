@@ -104,10 +104,7 @@ class CandidatePairs(PairRecords):
 
     @ti.kernel
     def _relist(self):
-        ti.loop_config(serialize=True)
-        for _ in range(1):
-            self._gather_found()
-            self._list_entries()
+        self._list(True)
 
     def ask_rebuild(self) -> None:
         """Rebuild the list at the next ``update`` (``bench`` times the build)."""
@@ -133,9 +130,15 @@ class CandidatePairs(PairRecords):
         for e in range(self.edge_count):
             if self.stale[None]:
                 self._list_edge_edge(x, e)
+        self._list(self.stale[None])
+
+    @ti.func
+    def _list(self, listing):
+        """When ``listing``, the list and the entries gathered from the rows of finds, on one
+        thread (``_gather_found``, ``_list_entries``)."""
         ti.loop_config(serialize=True)
         for _ in range(1):
-            if self.stale[None]:
+            if listing:
                 self._gather_found()
                 self._list_entries()
 
