@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # The --arch cuda figures of docs/performance.md, on a machine with an NVIDIA GPU: the CPU/CUDA
-# agreement tests (self-collision's GPU branch among them), then each real scene with every
-# integrator on CUDA, one process per scene under its own time limit, the rows printed as JSON
-# lines as they are measured, so that a slow compile or a failing part keeps what came before.
+# agreement tests, then each real scene with every integrator on CUDA, one process per scene
+# under its own time limit, the rows printed as JSON lines as they are measured, so that a slow
+# compile or a failing part keeps what came before. (A run defers SIGTERM to the end of its
+# launch and a compile is not interrupted: the limit kills 10 s after it.)
 # Usage: scripts/cuda-figures.sh OUT_DIR [SCENE:SECONDS ...]
 #   (default parts: hula-paper:80 flag:80 drape:80 hula:150; each part's log lands in OUT_DIR)
 set -uo pipefail
@@ -16,7 +17,7 @@ nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv,noheader ||
 part() {  # part NAME SECONDS COMMAND...: run a command under a limit, its output to NAME.log
     local name="$1" limit="$2"; shift 2
     local started=$SECONDS
-    timeout "$limit" "$@" >"$out/$name.log" 2>&1
+    timeout -k 10 "$limit" "$@" >"$out/$name.log" 2>&1
     echo "== $name: exit $? after $((SECONDS - started)) s"
     grep -v -e Warning -e '^ *"""' -e '^  *Save a field' "$out/$name.log" | tail -n 25
 }
@@ -34,13 +35,6 @@ for row in bench_scene_integrators(sys.argv[1], 0.3, 2):
 
 part agree 150 "$python" -m pytest -q -p no:cacheprovider --basetemp=/tmp/agree \
     tests/test_backends.py -k cuda -rs
-for stats in /tmp/agree/*/cuda/stats.json; do  # what the GPU runs measured, per frame
-    [ -f "$stats" ] && "$python" -c '
-import json, sys
-frames = json.load(open(sys.argv[1]))["per_frame"]
-keys = ("self_intersections", "self_collision_pairs", "self_collision_separations", "max_strain")
-print(sys.argv[1], {k: [f[k] for f in frames][-6:] for k in keys if k in frames[0]})' "$stats"
-done
 for spec in "${@:-hula-paper:80 flag:80 drape:80 hula:150}"; do
     for item in $spec; do
         part "${item%%:*}" "${item##*:}" "$python" -c "$scene_rows" "${item%%:*}"

@@ -36,17 +36,13 @@ def two_triangles(positions: np.ndarray) -> Garment:
 
 
 @functools.cache
-def two_triangle_physics(parallel: bool = False):
+def two_triangle_physics():
     """The two triangles' model with only the effect, built once (every test moves the same
-    six particles): (forces, state, output field, the effect). ``parallel``: the effect's loops
-    as a GPU runs them (every projection sweep in parallel, the moves added atomically), here on
-    the CPU's threads, chosen before anything compiles."""
+    six particles): (forces, state, output field, the effect)."""
     rest = np.array([[-1.0, 0, -1], [1, 0, -1], [0, 0, 1], [0, 1, 0], [1, 1, 0], [0, 1, 1]])
     model = Model(two_triangles(rest), "f64")
     physics = assemble(model, [(SelfCollision, SETTINGS)])
-    effect = physics.effects[0]
-    effect.serial = not parallel
-    return physics.forces, model.state(), ti.Vector.field(3, ti.f64, 6), effect
+    return physics.forces, model.state(), ti.Vector.field(3, ti.f64, 6), physics.effects[0]
 
 
 @ti.kernel
@@ -55,11 +51,11 @@ def finish_step(effect: ti.template(), state: ti.template()):
     effect.apply(state, 0.0)
 
 
-def self_collision_force(*steps: np.ndarray, parallel: bool = False) -> np.ndarray:
+def self_collision_force(*steps: np.ndarray) -> np.ndarray:
     """The effect's force on every particle at rest at the last positions of ``steps``, each
     earlier one a finished step (springs of zero stiffness: the mesh needs edges, the test no
     other force); a fresh start: no side records."""
-    forces, state, out, effect = two_triangle_physics(parallel)
+    forces, state, out, effect = two_triangle_physics()
     effect.forget_history()
     state.v.fill(0.0)
     for k, positions in enumerate(steps):
@@ -168,20 +164,18 @@ def test_edges_that_crossed_within_a_step_are_pushed_back():
     assert force[[3, 4], 1].sum() == pytest.approx(mean_mass * K_HAT * 0.013, rel=1e-6)
 
 
-@pytest.mark.parametrize("parallel", [False, True], ids=["serial", "parallel"])
 @pytest.mark.parametrize("before, after, kind", [
     (vertex_over_the_triangle(0.004), vertex_over_the_triangle(-0.002), "vertex"),
     (crossing_edges(0.005), crossing_edges(-0.002), "edges")])
 def test_a_step_that_crosses_ends_with_the_pair_a_thickness_apart_on_its_side(before, after,
-                                                                            kind, parallel):
+                                                                            kind):
     """A vertex through a face, and an edge through an edge, 2 mm deep within one step, particle 3
     moving down at 1 m/s: the step's end (the post step) moves the pair's particles back until
     it is ``SEPARATION`` of the thickness apart (to first order) on the side it came from,
     keeping the momentum, and takes the approach out of the velocities; the record says it
-    has not crossed, and the pair is counted once as put back. In parallel (a GPU's branch)
-    every pair that crossed is put back at once, the moves added up: at least that far apart."""
-    forces, state, out, effect = two_triangle_physics(parallel)
-    self_collision_force(before, parallel=parallel)
+    has not crossed, and the pair is counted once as put back."""
+    forces, state, out, effect = two_triangle_physics()
+    self_collision_force(before)
     finish_step(effect, state)
     separations = effect.frame_metrics(before)["self_collision_separations"]
     state.x.from_numpy(after)
@@ -194,10 +188,7 @@ def test_a_step_that_crosses_ends_with_the_pair_a_thickness_apart_on_its_side(be
         distance = closest_distance_point_triangle(x[3], x[0], x[1], x[2])
     else:
         distance = closest_distance_segments(x[3], x[4], x[0], x[1])
-    if parallel:
-        assert distance >= SEPARATION * THICKNESS * (1 - 1e-3)
-    else:
-        assert distance == pytest.approx(SEPARATION * THICKNESS, rel=1e-3)
+    assert distance == pytest.approx(SEPARATION * THICKNESS, rel=1e-3)
     assert x[3, 1] > x[0, 1] and x[0, 1] < 0  # particle 3 back above, the other side pushed down
     np.testing.assert_allclose(MASS @ (x - after), 0.0, atol=1e-12)
     np.testing.assert_allclose(MASS @ v, MASS @ velocity, atol=1e-12)

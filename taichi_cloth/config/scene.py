@@ -232,6 +232,10 @@ def scene_from_document(path: Path, raw: dict, overridden: list[str] = ()) -> Sc
                                            "on Vulkan its conjugate gradients break down at random "
                                            "(a race not found yet); use arch = \"cpu\" or "
                                            "\"cuda\", or an explicit integrator")
+    if "self_collision" in scene.effects and scene.simulation.arch != "cpu":
+        raise ctx.error("simulation.arch", "self-collision runs on the CPU only: on CUDA its "
+                                           "kernels were still compiling after 7 minutes (an "
+                                           "H200), on Vulkan after 10; use arch = \"cpu\"")
     check_precision_range(ctx, scene)
     check_camera(ctx, scene.render)
     return scene

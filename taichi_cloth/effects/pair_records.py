@@ -146,20 +146,19 @@ class PairRecords:
         return record
 
     @ti.func
-    def keep_positions(self, x, serial: ti.template()):
+    def keep_positions(self, x):
         """The positions x [m] of a finished step, every record committed to them
         (``commit_record``): x becomes ``last_x``, and ``reference_x``, where the pairs that the
         next build adds take their records, if the list still holds every pair within the
         thickness there (``_measure_deformation``); if not, ``reference_x`` is the step's start
         (the last ``last_x``), so a pair that came from beyond the reach through a face within
-        the step is seen to have crossed at the next step's end. On one thread when ``serial``.
+        the step is seen to have crossed at the next step's end. On one thread.
         (The build itself runs only in ``update``: inlined twice per step it doubled the
         kernels' compile time.)"""
         ti.loop_config(serialize=True)
         for _ in range(1):
             self._measure_deformation(x, False)
-        if ti.static(serial):
-            ti.loop_config(serialize=True)
+        ti.loop_config(serialize=True)
         for i in range(self.model.particle_count):
             if self.stale[None] and self.committed[None]:
                 self.reference_x[i] = self.last_x[i]

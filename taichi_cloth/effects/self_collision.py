@@ -29,7 +29,9 @@ taken out) by half the padding since the last build.
 
 Gathered, no atomics on forces: each pair's force (and blocks) is computed once per evaluation,
 with each of its four particles' share weight; a particle sums its entries' shares in list
-order, so a run is bit-reproducible on the CPU.
+order, so a run is bit-reproducible. The CPU only (``config.scene`` refuses a GPU arch: on CUDA
+these kernels did not finish compiling in 7 minutes); its loops over the list run on one thread,
+where a hand-off to a second costs more than it gains at these sizes.
 
 Implicit integrator: per-particle blocks of each pair (w²-weighted), the couplings between a
 pair's particles left out; tunnelling, the thickness bound and the measured cost: docs/physics.md.
@@ -47,7 +49,6 @@ from taichi_cloth.effects.penalty import (normal_force_magnitude, penalty_dampin
                                           penalty_force)
 from taichi_cloth.effects.proximity import VERTEX_TRIANGLE
 from taichi_cloth.errors import InputError
-from taichi_cloth.runtime import runs_on_cpu
 from taichi_cloth.settings import setting
 
 PADDING = 1.0  # the list's padding in thicknesses: rebuilt after half of it is deformed
@@ -82,7 +83,6 @@ class SelfCollision(Effect):
         garment = model.garment
         self.model = model
         self.blocks = context.needs_jacobian  # the implicit solver's blocks, else none
-        self.serial = runs_on_cpu()  # the per-evaluation loops: one thread beats a hand-off
         real = model.real
         rest = np.linalg.norm(np.diff(garment.positions[garment.edges], axis=1), axis=2)
         shortest = float(rest.min(initial=np.inf))
@@ -95,7 +95,7 @@ class SelfCollision(Effect):
         self.reach = settings.thickness + self.padding  # m
         self.pairs = CandidatePairs(model, self.reach, self.padding)
         self.post_step = self  # ``apply``: the side records after every step
-        self.moved = ti.field(ti.i32, ())  # pairs a sweep of ``apply`` put back (CPU)
+        self.moved = ti.field(ti.i32, ())  # pairs a sweep of ``apply`` put back
         self.separations = ti.field(ti.i32, ())  # pairs put back since the start
         capacity = self.pairs.capacity
         # per evaluation: each pair's force on its first point, its blocks, its particles' shares
@@ -113,8 +113,7 @@ class SelfCollision(Effect):
         """The candidate list brought up to date (``CandidatePairs.update``), then every listed
         pair's force and blocks."""
         self.pairs.update(x)
-        if ti.static(self.serial):
-            ti.loop_config(serialize=True)
+        ti.loop_config(serialize=True)
         for k in range(self.pairs.pair_count[None]):
             self._evaluate(x, v, k)
 
@@ -174,21 +173,14 @@ class SelfCollision(Effect):
         records while the sweep before moved any (putting one pair back can push a neighbour
         through: two diagonals of a tight fold take turns otherwise), each pair in turn
         (``_sweep_pair``); then the positions kept as the records' (``keep_positions``). On
-        one thread in list order (Gauss–Seidel, bit-reproducible) when the effect's loops are
-        serial; on a GPU each sweep in parallel, the moves added atomically (a pair may then
-        read a neighbour's move half done)."""
-        if ti.static(self.serial):
-            ti.loop_config(serialize=True)
-            for sweep in range(SEPARATION_SWEEPS):
-                if sweep == 0 or self.moved[None] > 0:
-                    self.moved[None] = 0
-                    for k in range(self.pairs.pair_count[None]):
-                        self._sweep_pair(state, k, sweep == 0)
-        else:
-            for sweep in ti.static(range(SEPARATION_SWEEPS)):
+        one thread in list order (Gauss–Seidel, bit-reproducible)."""
+        ti.loop_config(serialize=True)
+        for sweep in range(SEPARATION_SWEEPS):
+            if sweep == 0 or self.moved[None] > 0:
+                self.moved[None] = 0
                 for k in range(self.pairs.pair_count[None]):
-                    self._sweep_pair(state, k, ti.static(sweep == 0))
-        self.pairs.keep_positions(state.x, self.serial)
+                    self._sweep_pair(state, k, sweep == 0)
+        self.pairs.keep_positions(state.x)
 
     @ti.func
     def _sweep_pair(self, state, k, first):
