@@ -231,7 +231,13 @@ def prepare_scene(scene_name: str, overrides: list[str], frames: int | None, arc
     extra = list(overrides or [])
     if arch is not None:
         extra.append(f"simulation.arch={arch}")
-    scene = load_scene(scene_name, tuple(extra))
+    try:
+        scene = load_scene(scene_name, tuple(extra))
+    except InputError as error:  # name the flag the user gave, not the override it became
+        flag_key = "--set simulation.arch: "
+        if arch is None or not str(error).startswith(flag_key):
+            raise
+        raise InputError(f"--arch {arch}: {str(error)[len(flag_key):]}") from None
     if frames is not None and frames < 1:
         raise InputError(f"--frames {frames}: must be at least 1")
     return scene, frames if frames is not None else scene.frame_count

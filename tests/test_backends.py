@@ -73,5 +73,5 @@ def test_the_implicit_integrator_is_refused_on_vulkan(tmp_path):
     result = run_on("vulkan", ["simulation.integrator=implicit"], tmp_path / "out")
     assert result.returncode == 2
     lines = result.stderr.strip().splitlines()
-    assert len(lines) == 1 and "simulation.arch" in lines[0] and "implicit" in lines[0]
+    assert len(lines) == 1 and "--arch vulkan" in lines[0] and "implicit" in lines[0]
     assert not (tmp_path / "out").exists()

@@ -115,7 +115,7 @@ def run_cli(*args, cwd=REPO):
     (["simulate", "sheet", "--set", "cloth.shape=cone"], "cloth.shape"),
     (["simulate", "sheet", "--frames", "0"], "--frames"),
     (["simulate", "sheet", "--arch", "tpu"], "--arch"),
-    (["simulate", "fold", "--arch", "cuda"], "simulation.arch"),  # self-collision: CPU only
+    (["simulate", "fold", "--arch", "cuda"], "--arch cuda: self-collision"),  # CPU only
     (["simulate", "nowhere.toml"], "nowhere.toml"),
 ])
 def test_cli_bad_input_exits_2_with_one_line_and_no_traceback(tmp_path, args, flag):
