@@ -246,6 +246,7 @@ def test_thickness_of_half_an_edge_or_more_is_one_line_exit_2(capsys):
                  "effects.self_collision.thickness=0.5", "--out", "/nonexistent/x"]) == 2
     message = capsys.readouterr().err.strip()
     assert "effects.self_collision.thickness" in message and "\n" not in message
+    assert "below 0.02 m" in message  # the bound itself: half of fold's 4 cm edges
 
 
 FOLD = ("cloth.resolution=[12, 12]",)  # `fold` small: its halves meet at frame 13

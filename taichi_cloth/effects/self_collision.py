@@ -88,7 +88,8 @@ class SelfCollision(Effect):
         shortest = float(rest.min(initial=np.inf))
         if settings.thickness >= 0.5 * shortest:
             raise InputError(f"effects.self_collision.thickness: {settings.thickness:g} m must be "
-                             f"below half the cloth's shortest edge, {shortest:g} m")
+                             f"below {0.5 * shortest:g} m, half the cloth's shortest edge "
+                             f"({shortest:g} m)")
         self.thickness, self.stiffness = settings.thickness, settings.stiffness
         self.damping_ratio, self.friction = settings.damping, settings.friction
         self.padding = PADDING * settings.thickness  # m: the list holds pairs within reach
