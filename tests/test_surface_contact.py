@@ -122,3 +122,25 @@ def test_auto_step_sees_the_samples_stiffness(sheet):
     (stiffness, _), = sheet.contact.stability_modes()
     # an interior particle of a grid: itself, 6 edges (w = ½), 6 triangles (w = ⅓) of equal mass
     assert STIFFNESS * 2.5 < stiffness <= STIFFNESS * 6.0 + 1e-9
+
+
+def test_masks_kept_while_the_sheet_slides_across_the_bar_never_miss_a_contact(sheet):
+    """The near-masks are made again only when something has moved by half their slack
+    (``CapsuleContact``): sliding the sheet across the bar in steps of 0.3 of the slack, some
+    evaluations keep the masks and some make them again, and at every one the force is still
+    −∇ of the sampled energy, with the contacts coming and going along the way."""
+    slack = sheet.contact.mask_slack
+    kept = remade = 0
+    touching = []
+    for step in range(12):
+        x = sheet.x + [0.0, 0.3 * slack * step - 0.1, 0.0]
+        force = sheet.contact_force(x)
+        if sheet.contact.mask_stale[None]:
+            remade += 1
+        else:
+            kept += 1
+        gradient = energy_gradient(sheet.energy, x, 1e-7)
+        np.testing.assert_allclose(force, -gradient, atol=1e-6 * max(np.abs(force).max(), 1e-3))
+        touching.append(int(np.count_nonzero(np.abs(force).sum(axis=1))))
+    assert kept >= 3 and remade >= 3
+    assert max(touching) > 0 and min(touching) < max(touching)

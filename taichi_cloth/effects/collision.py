@@ -28,6 +28,7 @@ from taichi_cloth.settings import setting
 from taichi_cloth.uploads import upload
 
 MASK_BITS = 31  # capsules a particle's near-mask can hold (more: every sample tests them all)
+MASK_SLACK = 0.5  # of the longest rest edge: how far the masks reach beyond what they must hold
 
 
 @dataclass(frozen=True)
@@ -47,6 +48,15 @@ class CapsuleContact(Effect):
     ``prepare`` poses the capsules once per force evaluation; a particle then first tests each
     capsule's bounding sphere (centre (a + b)/2, radius |b − a|/2 + r + margin), and only
     particles inside it pay for the exact closest-point test.
+
+    With surface samples each particle and each sample also keeps a near-mask, the capsules
+    within r + margin + a slack s of it (its distance to the axis segment), and only those are
+    tested for it. The masks are made again only when a particle or a capsule end has moved by
+    more than s/2 since they were made (a sample, a mean of particles, moves no farther than
+    they do): until then a distance to a segment has changed by less than s, so every capsule
+    that a particle or a sample can touch is still in its mask. A bit too many changes nothing
+    (the sphere and the exact test decide): the forces are the same, bit for bit, however old
+    the masks. On a dancing skirt most samples hang clear of every capsule and skip the test.
     """
 
     name = "collision"
@@ -73,11 +83,10 @@ class CapsuleContact(Effect):
         self.capsule_velocity_b = ti.Vector.field(3, model.real, self.capsule_count)
         self.capsule_center = ti.Vector.field(3, model.real, self.capsule_count)
         self.capsule_reach_sq = ti.field(model.real, self.capsule_count)
-        # (reach + the farthest a sample can be from its particles)², for the particles' masks
-        self.capsule_sample_reach_sq = ti.field(model.real, self.capsule_count)
         self._host_radius = np.asarray(capsule_radius, dtype=track.numpy_real)
         self.surface = config.surface and len(model.garment.triangles) > 0
         self.stiffness_factor = 1.0
+        self.masked = False  # near-masks (with surface samples and at most MASK_BITS capsules)
         if self.surface:
             self._allocate_samples(model)
 
@@ -103,12 +112,19 @@ class CapsuleContact(Effect):
         free = mass > 0
         self.stiffness_factor = float(np.max(1.0 + share[free] / mass[free])) if free.any() else 1.0
         self.sample_count = len(corners)
-        # a sample lies within an edge length of its particles; the guard allows 100 % strain
         rest = np.linalg.norm(np.diff(model.garment.positions[edges], axis=1), axis=2)
-        self.sample_pad = 2.0 * float(rest.max(initial=0.0))
         self.masked = self.capsule_count <= MASK_BITS
-        self.particle_near = ti.field(ti.i32, model.particle_count)
+        self.mask_slack = MASK_SLACK * float(rest.max(initial=0.0))  # m
         real = model.real
+        self.particle_near = ti.field(ti.i32, model.particle_count)
+        self.sample_near = ti.field(ti.i32, self.sample_count)
+        # where the particles and the capsules' ends were when the masks were made [m]; stale:
+        # the masks are made again at this evaluation
+        self.mask_x = ti.Vector.field(3, real, model.particle_count)
+        self.mask_a = ti.Vector.field(3, real, self.capsule_count)
+        self.mask_b = ti.Vector.field(3, real, self.capsule_count)
+        self.mask_stale = ti.field(ti.i32, ())
+        self.mask_sphere_sq = ti.field(real, self.capsule_count)  # bounding sphere + slack, m²
         self.sample_corners = ti.Vector.field(3, ti.i32, self.sample_count)
         self.sample_weights = ti.Vector.field(3, real, self.sample_count)
         self.sample_mass = ti.field(real, self.sample_count)
@@ -125,7 +141,9 @@ class CapsuleContact(Effect):
         if self.surface:
             real = self.model.numpy_real
             corners, weights, sample_mass, start, item, item_weight = self._sample_tables
-            pairs += [(self.sample_corners, corners),
+            far = np.full((self.model.particle_count, 3), np.inf)  # the first check remakes them
+            pairs += [(self.mask_x, far.astype(real)),
+                      (self.sample_corners, corners),
                       (self.sample_weights, weights.astype(real)),
                       (self.sample_mass, sample_mass.astype(real)),
                       (self.particle_sample_start, start), (self.particle_sample, item),
@@ -140,12 +158,10 @@ class CapsuleContact(Effect):
         sample's contact force at (x, v)."""
         self._pose(t)
         if ti.static(self.surface):
-            for i_p in range(self.model.particle_count):
-                self.particle_near[i_p] = self._near_mask(x[i_p])
+            if ti.static(self.masked):
+                self._refresh_masks(x)
             for i_s in range(self.sample_count):
-                corners = self.sample_corners[i_s]
-                mask = self.particle_near[corners[0]] | self.particle_near[corners[1]] \
-                    | self.particle_near[corners[2]]
+                mask = self._sample_mask(i_s)
                 force = ti.Vector.zero(self.model.real, 3)
                 if mask != 0:
                     position, velocity = self._sample_state(x, v, i_s)
@@ -153,28 +169,62 @@ class CapsuleContact(Effect):
                 self.sample_force[i_s] = force
 
     @ti.func
+    def _refresh_masks(self, x):
+        """Every particle's and sample's near-mask made again at x [m] when a particle or a
+        capsule end has moved by more than half the slack since the last time (class
+        docstring)."""
+        real = self.model.real
+        half_slack_sq = real(0.25 * self.mask_slack ** 2)
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            self.mask_stale[None] = 0
+        for i_p in range(self.model.particle_count):
+            if (x[i_p] - self.mask_x[i_p]).norm_sqr() > half_slack_sq:
+                ti.atomic_max(self.mask_stale[None], 1)
+        for i_c in range(self.capsule_count):
+            if (self.capsule_a[i_c] - self.mask_a[i_c]).norm_sqr() > half_slack_sq \
+                    or (self.capsule_b[i_c] - self.mask_b[i_c]).norm_sqr() > half_slack_sq:
+                ti.atomic_max(self.mask_stale[None], 1)
+            self.mask_sphere_sq[i_c] = (ti.sqrt(self.capsule_reach_sq[i_c])
+                                        + real(self.mask_slack)) ** 2
+        for i_p in range(self.model.particle_count):
+            if self.mask_stale[None]:
+                self.particle_near[i_p] = self._near_mask(x[i_p])
+                self.mask_x[i_p] = x[i_p]
+        for i_s in range(self.sample_count):
+            if self.mask_stale[None]:
+                self.sample_near[i_s] = self._near_mask(self._sample_point(x, i_s))
+        for i_c in range(self.capsule_count):
+            if self.mask_stale[None]:
+                self.mask_a[i_c], self.mask_b[i_c] = self.capsule_a[i_c], self.capsule_b[i_c]
+
+    @ti.func
     def _near_mask(self, position):
-        """Bit c set when ``position`` is within capsule c's reach padded by ``sample_pad``:
-        every sample near capsule c has a particle with bit c (all bits without ``masked``)."""
-        mask = -1
-        if ti.static(self.masked):
-            mask = 0
-            for i_c in range(self.capsule_count):
-                if (position - self.capsule_center[i_c]).norm_sqr() \
-                        < self.capsule_sample_reach_sq[i_c]:
+        """Bit c set when ``position`` [m] is within r_c + margin + the slack of capsule c's
+        axis segment (first culled by the capsule's bounding sphere grown by the slack)."""
+        mask = 0
+        for i_c in range(self.capsule_count):
+            if (position - self.capsule_center[i_c]).norm_sqr() < self.mask_sphere_sq[i_c]:
+                a, b = self.capsule_a[i_c], self.capsule_b[i_c]
+                reach = self.capsule_radius[i_c] + self.model.real(self.margin + self.mask_slack)
+                if (position - (a + closest_on_segment(position, a, b) * (b - a))).norm_sqr() \
+                        < reach * reach:
                     mask |= 1 << i_c
         return mask
 
     @ti.func
     def _sample_state(self, x, v, i_s):
         """Position [m] and velocity [m/s] of surface sample i_s: Σ w_a·x_a, Σ w_a·v_a."""
+        return self._sample_point(x, i_s), self._sample_point(v, i_s)
+
+    @ti.func
+    def _sample_point(self, values, i_s):
+        """Σ w_a·values_a over surface sample i_s's particles a."""
         corners, weights = self.sample_corners[i_s], self.sample_weights[i_s]
-        position = ti.Vector.zero(self.model.real, 3)
-        velocity = ti.Vector.zero(self.model.real, 3)
+        point = ti.Vector.zero(self.model.real, 3)
         for a in ti.static(range(3)):
-            position += weights[a] * x[corners[a]]
-            velocity += weights[a] * v[corners[a]]
-        return position, velocity
+            point += weights[a] * values[corners[a]]
+        return point
 
     @ti.func
     def _pose(self, t):
@@ -187,9 +237,6 @@ class CapsuleContact(Effect):
             self.capsule_center[i_c] = 0.5 * (a + b)
             reach = 0.5 * (b - a).norm() + self.capsule_radius[i_c] + real(self.margin)
             self.capsule_reach_sq[i_c] = reach * reach
-            if ti.static(self.surface):
-                padded = reach + real(self.sample_pad)
-                self.capsule_sample_reach_sq[i_c] = padded * padded
 
     @ti.func
     def probe(self, i_c, position):
@@ -231,11 +278,19 @@ class CapsuleContact(Effect):
 
     @ti.func
     def _mask(self, i_p):
-        """Particle i_p's near-mask of the last ``prepare`` (every capsule without surface
-        samples, which need no pass)."""
+        """Particle i_p's near-mask (every capsule without surface samples, which need no
+        pass, or with more capsules than ``MASK_BITS``)."""
         mask = -1
-        if ti.static(self.surface):
+        if ti.static(self.masked):
             mask = self.particle_near[i_p]
+        return mask
+
+    @ti.func
+    def _sample_mask(self, i_s):
+        """Sample i_s's near-mask (every capsule with more than ``MASK_BITS``)."""
+        mask = -1
+        if ti.static(self.masked):
+            mask = self.sample_near[i_s]
         return mask
 
     @ti.func
@@ -260,9 +315,7 @@ class CapsuleContact(Effect):
                 i_s = self.particle_sample[k]
                 weight = self.particle_sample_weight[k]
                 position, velocity = self._sample_state(x, v, i_s)
-                corners = self.sample_corners[i_s]
-                mask = self.particle_near[corners[0]] | self.particle_near[corners[1]] \
-                    | self.particle_near[corners[2]]
+                mask = self._sample_mask(i_s)
                 sample_stiffness, sample_damping = self._contact_blocks(
                     self.sample_mass[i_s], position, velocity, mask, definite)
                 stiffness_block += weight * weight * sample_stiffness
