@@ -205,10 +205,8 @@ class CapsuleContact(Effect):
         mask = 0
         for i_c in range(self.capsule_count):
             if (position - self.capsule_center[i_c]).norm_sqr() < self.mask_sphere_sq[i_c]:
-                a, b = self.capsule_a[i_c], self.capsule_b[i_c]
-                reach = self.capsule_radius[i_c] + self.model.real(self.margin + self.mask_slack)
-                if (position - (a + closest_on_segment(position, a, b) * (b - a))).norm_sqr() \
-                        < reach * reach:
+                depth, _, _, _, _, _ = self.probe(i_c, position)
+                if depth > -self.model.real(self.mask_slack):
                     mask |= 1 << i_c
         return mask
 
