@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 
 from taichi_cloth.config.materials import PRESETS
-from taichi_cloth.config.scene import (SCENES_DIR, load_scene, resolved_document,
-                                       shipped_scene_names)
+from taichi_cloth.config.scene import (SCENES_DIR, arch_override, load_scene,
+                                       resolved_document, shipped_scene_names)
 from taichi_cloth.config.tables import MESH_FORMATS
 from taichi_cloth.errors import InputError, UnstableError
 from taichi_cloth.flags import choice_list
@@ -228,16 +228,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def prepare_scene(scene_name: str, overrides: list[str], frames: int | None, arch: str | None):
     """Load the scene with the common flags applied."""
-    extra = list(overrides or [])
-    if arch is not None:
-        extra.append(f"simulation.arch={arch}")
-    try:
-        scene = load_scene(scene_name, tuple(extra))
-    except InputError as error:  # name the flag the user gave, not the override it became
-        flag_key = "--set simulation.arch: "
-        if arch is None or not str(error).startswith(flag_key):
-            raise
-        raise InputError(f"--arch {arch}: {str(error)[len(flag_key):]}") from None
+    extra, flags = arch_override(overrides, arch)
+    scene = load_scene(scene_name, tuple(extra), flags)
     if frames is not None and frames < 1:
         raise InputError(f"--frames {frames}: must be at least 1")
     return scene, frames if frames is not None else scene.frame_count

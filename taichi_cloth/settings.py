@@ -35,19 +35,21 @@ def setting(default: Any, kind: str, *, low: float | None = None, high: float | 
 
 
 class SourceContext:
-    """Where a value came from, for error messages: the file, or the --set flag."""
+    """Where a value came from, for error messages: the file, or the flag that overrode it
+    (``overridden``: dotted key → the flag as the user gave it, e.g. "--set cloth.shape" or
+    "--arch cuda")."""
 
-    def __init__(self, path: str, overridden: list[str]):
+    def __init__(self, path: str, overridden: dict[str, str]):
         self.path = path
         self.overridden = overridden
 
     def error(self, dotted: str, problem: str) -> InputError:
-        """The error at ``dotted``, naming the most specific --set key that reaches it (or the
-        file)."""
+        """The error at ``dotted``, naming the flag of the most specific overridden key that
+        reaches it (or the file)."""
         matching = [key for key in self.overridden
                     if dotted == key or dotted.startswith(key + ".") or key.startswith(dotted + ".")]
         if matching:
-            return InputError(f"--set {max(matching, key=len)}: {problem}")
+            return InputError(f"{self.overridden[max(matching, key=len)]}: {problem}")
         return InputError(f"{self.path}: {dotted}: {problem}")
 
 

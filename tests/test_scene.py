@@ -116,6 +116,7 @@ def run_cli(*args, cwd=REPO):
     (["simulate", "sheet", "--frames", "0"], "--frames"),
     (["simulate", "sheet", "--arch", "tpu"], "--arch"),
     (["simulate", "fold", "--arch", "cuda"], "--arch cuda: self-collision"),  # CPU only
+    (["compare", "fold", "--arch", "cuda"], "--arch cuda: self-collision"),
     (["simulate", "nowhere.toml"], "nowhere.toml"),
 ])
 def test_cli_bad_input_exits_2_with_one_line_and_no_traceback(tmp_path, args, flag):

@@ -150,8 +150,11 @@ def _build_effects(ctx: SourceContext, table: Any, bending: str) -> dict:
 SECTIONS = ("scene", "simulation", "cloth", "effects", "body", "render", "output")
 
 
-def load_scene(name_or_path: str, overrides: tuple[str, ...] = ()) -> Scene:
-    """Read, override and validate a scene. Raises ``InputError`` on any bad input."""
+def load_scene(name_or_path: str, overrides: tuple[str, ...] = (),
+               flags: dict[str, str] | None = None) -> Scene:
+    """Read, override and validate a scene. ``flags``: the flag an override text stands for
+    (e.g. "simulation.arch=cuda" → "--arch cuda"), named in its errors instead of "--set KEY".
+    Raises ``InputError`` on any bad input."""
     path = resolve_scene_path(name_or_path)
     try:
         raw = tomllib.loads(path.read_text(encoding="utf-8"))
@@ -159,20 +162,31 @@ def load_scene(name_or_path: str, overrides: tuple[str, ...] = ()) -> Scene:
         raise InputError(f"{path}: not valid TOML: {error}") from None
     except (OSError, UnicodeDecodeError) as error:
         raise InputError(f"{path}: cannot read: {error}") from None
-    overridden = []
+    overridden = {}
     for text in overrides:
         parts, value = parse_override(text)
         apply_override(raw, parts, value)
-        overridden.append(".".join(parts))
+        key = ".".join(parts)
+        overridden[key] = (flags or {}).get(text, f"--set {key}")
     return scene_from_document(path, raw, overridden)
 
 
-def scene_from_document(path: Path, raw: dict, overridden: list[str] = ()) -> Scene:
-    """The validated scene of a TOML document ``raw`` (the file's tables after the overrides of
-    the dotted keys ``overridden``) read from ``path`` (relative paths in it, such as a
-    texture's, are relative to that file). Raises ``InputError`` on any bad input."""
+def arch_override(overrides, arch: str | None) -> tuple[list[str], dict[str, str]]:
+    """The --set overrides with --arch as one more (``simulation.arch``), and the flags to name
+    in its errors (``load_scene``)."""
+    extra = list(overrides or [])
+    if arch is None:
+        return extra, {}
+    text = f"simulation.arch={arch}"
+    return [*extra, text], {text: f"--arch {arch}"}
+
+
+def scene_from_document(path: Path, raw: dict, overridden: dict[str, str] | None = None) -> Scene:
+    """The validated scene of a TOML document ``raw`` (the file's tables after the overrides
+    ``overridden``: dotted key → the flag that set it) read from ``path`` (relative paths in it,
+    such as a texture's, are relative to that file). Raises ``InputError`` on any bad input."""
     path = Path(path)
-    ctx = SourceContext(str(path), list(overridden))
+    ctx = SourceContext(str(path), dict(overridden or {}))
     for section in raw:
         if section not in SECTIONS:
             close = difflib.get_close_matches(section, SECTIONS, n=1)
