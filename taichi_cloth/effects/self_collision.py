@@ -201,9 +201,9 @@ class SelfCollision(Effect):
         record = self.pairs.record(k)
         if first or ti.abs(record) == crossing_history.INSIDE:
             ids = self.pairs.pair_particles[k]
-            share, inside, normal, height, _offset = self.pairs.side(state.x, k)
+            share, inside, normal, height, offset = self.pairs.side(state.x, k)
             if first:
-                record = self.pairs.commit_record(k, inside, height)
+                record = self.pairs.commit_record(k, inside, height, offset.norm())
             side = real(1.0) if record > 0 else real(-1.0)
             if crossing_history.is_crossed(record) or (
                     ti.abs(record) == crossing_history.INSIDE and inside and side * height < 0):
