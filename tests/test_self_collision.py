@@ -166,14 +166,15 @@ def test_edges_that_crossed_within_a_step_are_pushed_back():
 
 @pytest.mark.parametrize("before, after, kind", [
     (vertex_over_the_triangle(0.004), vertex_over_the_triangle(-0.002), "vertex"),
-    (vertex_over_the_triangle(0.004, -1.003), vertex_over_the_triangle(-0.002, -0.99), "vertex"),
+    (vertex_over_the_triangle(0.006, -1.015), vertex_over_the_triangle(-0.002, -0.95), "vertex"),
     (crossing_edges(0.005), crossing_edges(-0.002), "edges")],
-    ids=["through the face", "past the edge it touched", "edge through edge"])
+    ids=["through the face", "in over the face and through it", "edge through edge"])
 def test_a_step_that_crosses_ends_with_the_pair_a_thickness_apart_on_its_side(before, after,
                                                                             kind):
-    """A vertex through a face, a vertex touching the face's edge from outside (5 mm off it,
-    within the thickness) slid past it to under the face, and an edge through an edge, 2 mm
-    deep within one step, particle 3
+    """A vertex through a face, a vertex from outside beyond the face's edge (16 mm off it) in
+    over the face and through it (inside and above it at ¼ and ½ of the step's path: only the
+    path shows the crossing, its end alone is a vertex come in from outside), and an edge
+    through an edge, 2 mm deep within one step, particle 3
     moving down at 1 m/s: the step's end (the post step) moves the pair's particles back until
     it is ``SEPARATION`` of the thickness apart (to first order) on the side it came from,
     keeping the momentum, and takes the approach out of the velocities; the record says it

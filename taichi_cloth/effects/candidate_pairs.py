@@ -49,7 +49,6 @@ class CandidatePairs(PairRecords):
         garment = model.garment
         self.model = model
         self.reach, self.padding = reach, padding
-        self.thickness = reach - padding  # m: closer than it, a pair touches
         particles = model.particle_count
         self.triangle_count, self.edge_count = len(garment.triangles), len(garment.edges)
         self.triangle_boxes = BoxGrid(self.triangle_count, model.real)

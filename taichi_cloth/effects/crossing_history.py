@@ -16,32 +16,22 @@ records, as one integer,
     ±1         outside, on side σ = ±1 (σ then follows the sign of h)
     ±2         inside, on its side σ
     ±3         inside on the other side than σ: it has crossed within a step
-    ±4         outside but touching (closer than the thickness), on side σ
 
-so that σ changes only outside, and a pair that was touching outside and is inside on the other
-side at the next step has crossed too: it slid past the edge or end it touched within the step.
-Going round that edge that close is possible only where the cloth ends or creases sharply there
-(the neighbouring triangle turned away), where the rule sees a crossing that was none; but two
-particles of a fold pressed flat within one cell (their pairs all touch at an end or an edge,
-so none is inside) slide past each other this way, which the records of inside pairs never saw
-(a silk circle skirt at a 1 mm thickness crossed itself in 11 pairs while it settled).
-
-While the pair was inside at the last commit and is inside at an evaluation, its penalty uses the
-signed distance σ·h along σ·n (``oriented``): the same force as the unsigned one on its own side,
-continuous through h = 0, and growing with the depth on the wrong side, back towards σ. A pair
-that enters inside from outside takes the side it is on (unless it touched, above).
+so that σ changes only outside. While the pair was inside at the last commit and is inside at an
+evaluation, its penalty uses the signed distance σ·h along σ·n (``oriented``): the same force as
+the unsigned one on its own side, continuous through h = 0, and growing with the depth on the
+wrong side, back towards σ. A pair that enters inside from outside takes the side it is on.
 """
 
 import taichi as ti
 
-# magnitudes of a record (module docstring)
-UNKNOWN, OUTSIDE, INSIDE, CROSSED, TOUCHING = 0, 1, 2, 3, 4
+UNKNOWN, OUTSIDE, INSIDE, CROSSED = 0, 1, 2, 3  # magnitudes of the record (module docstring)
 
 
 @ti.func
-def commit(record, inside, height, touching):
+def commit(record, inside, height):
     """The record after a committed step where the pair is ``inside`` with offset ``height``
-    [m] along its normal, ``touching`` (closer than the thickness) or not (module docstring)."""
+    [m] along its normal (module docstring)."""
     sign = 0
     if height > 0:
         sign = 1
@@ -49,12 +39,10 @@ def commit(record, inside, height, touching):
         sign = -1
     side = 1 if record >= 0 else -1
     state = ti.abs(record)
-    if state == TOUCHING and inside and sign == -side:
-        state = CROSSED
-    elif state == UNKNOWN or state == OUTSIDE or state == TOUCHING or not inside:
+    if state == UNKNOWN or state == OUTSIDE or not inside:
         if sign != 0:
             side = sign
-        state = INSIDE if inside else (TOUCHING if touching else OUTSIDE)
+        state = INSIDE if inside else OUTSIDE
         if record == UNKNOWN and sign == 0:
             state = UNKNOWN
     elif sign != 0:

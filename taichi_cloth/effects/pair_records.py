@@ -92,9 +92,8 @@ class PairRecords:
                 _share, inside, _normal, height, offset = geometry(first, second, third, fourth,
                                                                    self.model.real)
                 if at_reference:
-                    self._find(owner, other, crossing_history.commit(
-                        crossing_history.UNKNOWN, inside, height,
-                        offset.norm() < self.model.real(self.thickness)))
+                    self._find(owner, other, crossing_history.commit(crossing_history.UNKNOWN,
+                                                                     inside, height))
                 elif offset.norm() <= self.model.real(self.reach):
                     record, held = self._held_record(owner, other)
                     if not held and self.committed[None]:
@@ -139,12 +138,10 @@ class PairRecords:
         return pair_side(x, self.pair_kind[k], self.pair_particles[k], self.model.real)
 
     @ti.func
-    def commit_record(self, k, inside, height, distance):
+    def commit_record(self, k, inside, height):
         """Pair k's side record brought to the end of a step at which its closest points are
-        ``inside`` with signed ``height`` [m], ``distance`` [m] apart
-        (``crossing_history.commit``); the new record."""
-        record = crossing_history.commit(self.record(k), inside, height,
-                                         distance < self.model.real(self.thickness))
+        ``inside`` with signed ``height`` [m] (``crossing_history.commit``); the new record."""
+        record = crossing_history.commit(self.record(k), inside, height)
         self.set_record(k, record)
         return record
 

@@ -113,9 +113,15 @@ def pair_side(x, kind, ids, real: ti.template()):
     of the offset between its closest points; whether its closest points are inside; its unit
     normal; the offset along it [m]; the offset [m]: the first point minus the second)
     (``vertex_triangle_geometry``, ``edge_edge_geometry``)."""
+    return pair_geometry(kind, x[ids[0]], x[ids[1]], x[ids[2]], x[ids[3]], real)
+
+
+@ti.func
+def pair_geometry(kind, first, second, third, fourth, real: ti.template()):
+    """``pair_side`` of the pair of ``kind`` with its four points at ``first`` … ``fourth``
+    [m]."""
     share, inside, normal = ti.Vector.zero(real, 4), 0, ti.Vector.zero(real, 3)
     height, offset = real(0.0), ti.Vector.zero(real, 3)
-    first, second, third, fourth = x[ids[0]], x[ids[1]], x[ids[2]], x[ids[3]]
     if kind == VERTEX_TRIANGLE:
         share, inside, normal, height, offset = vertex_triangle_geometry(first, second, third,
                                                                          fourth, real)

@@ -47,13 +47,15 @@ from taichi_cloth.effects.base import Effect, EffectContext
 from taichi_cloth.effects.candidate_pairs import CandidatePairs
 from taichi_cloth.effects.penalty import (normal_force_magnitude, penalty_damping_block,
                                           penalty_force)
-from taichi_cloth.effects.proximity import VERTEX_TRIANGLE
+from taichi_cloth.effects.proximity import VERTEX_TRIANGLE, pair_geometry
 from taichi_cloth.errors import InputError
 from taichi_cloth.settings import setting
 
 PADDING = 1.0  # the list's padding in thicknesses: rebuilt after half of it is deformed
 SEPARATION = 0.25  # a crossed pair is put back this fraction of the thickness apart
 SEPARATION_SWEEPS = 4  # sweeps of the list that put crossed pairs back, at most, each step
+PATH_POINTS = 4  # points of a step's straight path at which each pair's side record is brought
+# up to date (``_sweep_pair``): 1/4, 1/2, 3/4 and the end
 CONTACTS_PER_PARTICLE = 4  # the stiffness bound for dt = "auto": a vertex, corner and edge shares
 
 
@@ -185,9 +187,14 @@ class SelfCollision(Effect):
 
     @ti.func
     def _sweep_pair(self, state, k, first):
-        """Pair k in a sweep of ``apply``: in the ``first``, its record committed to the
-        positions (``commit_record``); then, if it has crossed (its record says so, or it is
-        inside with the other sign of height than its record's, σ·h < 0), moved back onto its
+        """Pair k in a sweep of ``apply``: in the ``first``, its record committed
+        (``commit_record``) at ``PATH_POINTS`` points of the step's straight path from the last
+        step's end (``last_x``; the particles of an Euler or backward Euler step move on
+        straight lines, RK4's nearly) to the positions, the last point exactly them: a pair
+        that crossed on the way stays crossed if it is inside on the wrong side at the end (not
+        if it went on past the edge: there the face's neighbour sees the crossing, or the edge
+        is the cloth's border or a crease, round which it may go); then, if it has crossed (its record says so, or it is inside with the
+        other sign of height than its record's, σ·h < 0), moved back onto its
         side (``SEPARATION`` of the thickness: the penalty, oriented by the record, does the
         rest over the next steps without a jump that stretches the cloth), and its approach
         along the normal stopped: the inelastic projection of Bridson, Fedkiw & Anderson (2002,
@@ -201,9 +208,23 @@ class SelfCollision(Effect):
         record = self.pairs.record(k)
         if first or ti.abs(record) == crossing_history.INSIDE:
             ids = self.pairs.pair_particles[k]
-            share, inside, normal, height, offset = self.pairs.side(state.x, k)
-            if first:
-                record = self.pairs.commit_record(k, inside, height, offset.norm())
+            kind = self.pairs.pair_kind[k]
+            share, inside, normal = ti.Vector.zero(real, 4), 0, ti.Vector.zero(real, 3)
+            height = real(0.0)
+            # the step's straight path from the last commit (``last_x``), in the first sweep
+            start = PATH_POINTS
+            if first and self.pairs.committed[None]:
+                start = 1
+            for point in range(start, PATH_POINTS + 1):
+                along = ti.cast(point, real) * real(1.0 / PATH_POINTS)
+                last = [self.pairs.last_x[ids[slot]] for slot in ti.static(range(4))]
+                at = [ti.select(point < PATH_POINTS,
+                                last[slot] + along * (state.x[ids[slot]] - last[slot]),
+                                state.x[ids[slot]]) for slot in ti.static(range(4))]
+                share, inside, normal, height, _offset = pair_geometry(kind, at[0], at[1], at[2],
+                                                                       at[3], real)
+                if first and (point == PATH_POINTS or not crossing_history.is_crossed(record)):
+                    record = self.pairs.commit_record(k, inside, height)
             side = real(1.0) if record > 0 else real(-1.0)
             if crossing_history.is_crossed(record) or (
                     ti.abs(record) == crossing_history.INSIDE and inside and side * height < 0):
