@@ -189,20 +189,20 @@ class SelfCollision(Effect):
     def _sweep_pair(self, state, k, first):
         """Pair k in a sweep of ``apply``: in the ``first``, its record committed
         (``commit_record``) at ``PATH_POINTS`` points of the step's straight path from the last
-        step's end (``last_x``; the particles of an Euler or backward Euler step move on
-        straight lines, RK4's nearly) to the positions, the last point exactly them: a pair
-        that crossed on the way stays crossed if it is inside on the wrong side at the end (not
-        if it went on past the edge: there the face's neighbour sees the crossing, or the edge
-        is the cloth's border or a crease, round which it may go); then, if it has crossed (its record says so, or it is inside with the
-        other sign of height than its record's, σ·h < 0), moved back onto its
-        side (``SEPARATION`` of the thickness: the penalty, oriented by the record, does the
-        rest over the next steps without a jump that stretches the cloth), and its approach
+        step's end (``last_x``; the particles of an Euler or backward Euler step move on straight
+        lines, RK4's nearly) to the positions, the last point exactly them: a pair that crossed
+        on the way stays crossed if it is inside on the wrong side at the end (not if it went on
+        past the edge: there the face's neighbour sees the crossing, or the edge is the cloth's
+        border or a crease, round which it may go); then, if it has crossed (its record says so,
+        or it is inside with the other sign of height than its record's, σ·h < 0), moved back
+        onto its side (``SEPARATION`` of the thickness: the penalty, oriented by the record, does
+        the rest over the next steps without a jump that stretches the cloth), and its approach
         along the normal stopped: the inelastic projection of Bridson, Fedkiw & Anderson (2002,
         §7.1) on the constraint C = σ·n·Σ_i b_i·x_i − SEPARATION·thickness (b the pair's shares,
         σ·n the normal of its side): x_i += λ·b_i·w_i·σn with λ = −C / Σ_i b_i²·w_i (w the
         inverse masses; pinned particles do not move), and the same for the velocities when
-        Σ_i b_i·v_i·σn < 0. Momentum is kept (Σ b_i = 0); the pair's record is back on its
-        side; ``moved`` counts it."""
+        Σ_i b_i·v_i·σn < 0. Momentum is kept (Σ b_i = 0); the pair's record is back on its side;
+        ``moved`` counts it."""
         real = self.model.real
         inverse_mass = ti.static(self.model.particle_inv_mass)
         record = self.pairs.record(k)
