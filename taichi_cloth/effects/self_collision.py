@@ -55,7 +55,8 @@ PADDING = 1.0  # the list's padding in thicknesses: rebuilt after half of it is 
 SEPARATION = 0.25  # a crossed pair is put back this fraction of the thickness apart
 SEPARATION_SWEEPS = 4  # sweeps of the list that put crossed pairs back, at most, each step
 PATH_POINTS = 4  # points of a step's straight path at which each pair's side record is brought
-# up to date (``_sweep_pair``): 1/4, 1/2, 3/4 and the end
+# up to date (``_sweep_pair``): 1/4, 1/2, 3/4 and the end (the points before it only for a pair
+# inside at the end)
 CONTACTS_PER_PARTICLE = 4  # the stiffness bound for dt = "auto": a vertex, corner and edge shares
 
 
@@ -211,20 +212,27 @@ class SelfCollision(Effect):
             kind = self.pairs.pair_kind[k]
             share, inside, normal = ti.Vector.zero(real, 4), 0, ti.Vector.zero(real, 3)
             height = real(0.0)
-            # the step's straight path from the last commit (``last_x``), in the first sweep
-            start = PATH_POINTS
+            # The step's end, then (first sweep, a pair inside at the end: outside, the path
+            # cannot change the record) the points on its path from the last commit
+            # (``last_x``) in order; one inlined copy of the geometry serves all.
+            rounds = 1
             if first and self.pairs.committed[None]:
-                start = 1
-            for point in range(start, PATH_POINTS + 1):
-                along = ti.cast(point, real) * real(1.0 / PATH_POINTS)
-                last = [self.pairs.last_x[ids[slot]] for slot in ti.static(range(4))]
-                at = [ti.select(point < PATH_POINTS,
-                                last[slot] + along * (state.x[ids[slot]] - last[slot]),
-                                state.x[ids[slot]]) for slot in ti.static(range(4))]
-                share, inside, normal, height, _offset = pair_geometry(kind, at[0], at[1], at[2],
-                                                                       at[3], real)
-                if first and (point == PATH_POINTS or not crossing_history.is_crossed(record)):
-                    record = self.pairs.commit_record(k, inside, height)
+                rounds = PATH_POINTS
+            for round_ in range(rounds):
+                if round_ == 0 or inside:
+                    along = ti.cast(round_, real) * real(1.0 / PATH_POINTS)
+                    last = [self.pairs.last_x[ids[slot]] for slot in ti.static(range(4))]
+                    at = [ti.select(round_ > 0,
+                                    last[slot] + along * (state.x[ids[slot]] - last[slot]),
+                                    state.x[ids[slot]]) for slot in ti.static(range(4))]
+                    on_share, on_inside, on_normal, on_height, _offset = pair_geometry(
+                        kind, at[0], at[1], at[2], at[3], real)
+                    if round_ == 0:
+                        share, inside, normal, height = on_share, on_inside, on_normal, on_height
+                    elif not crossing_history.is_crossed(record):
+                        record = self.pairs.commit_record(k, on_inside, on_height)
+            if first:
+                record = self.pairs.commit_record(k, inside, height)
             side = real(1.0) if record > 0 else real(-1.0)
             if crossing_history.is_crossed(record) or (
                     ti.abs(record) == crossing_history.INSIDE and inside and side * height < 0):
