@@ -20,8 +20,8 @@ blocks in order, so a solve is bit-reproducible whatever the thread count (no ra
 float adds). Small cloth (``self.serial``) runs the whole solve, convergence test included, in
 one kernel launch on one thread; larger cloth launches one kernel per iteration, each pass a
 parallel loop over the blocks. With Jacobi both run the same block functions and take the same
-steps. Scratch fields are allocated once; only ``_start_candidate`` (and the copy out) is
-compiled once per state.
+steps. Scratch fields are allocated once; only ``_start_candidate`` and ``_accept`` (the copy
+out) are compiled once per state.
 """
 
 import math

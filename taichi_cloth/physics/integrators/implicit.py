@@ -127,10 +127,9 @@ class BackwardEuler(GaussSeidelSweeps, BlockConjugateGradient, Integrator):
         for newton in range(self.newton_iterations):
             self._prepare(t, dt, self._start_weight(dt) if newton == 0 else 0.0)
             iterations += self._solve()
-            self._accept(dt, newton == self.newton_iterations - 1)
+            self._accept(state_out, dt, newton == self.newton_iterations - 1)
         self.last_dt = dt
         self.step_iterations.append(iterations)
-        state_out.copy_from(self.candidate)
         if self.has_post_step:
             self._post_step(state_out, t + dt)
 
@@ -148,7 +147,8 @@ class BackwardEuler(GaussSeidelSweeps, BlockConjugateGradient, Integrator):
         state); v_c = v₀ and x_c = x₀ + h·v₀; pinned particles at their targets at t + h."""
         model = self.model
         h = ti.cast(dt, model.real)
-        for i_p in state.x:
+        ti.loop_config(serialize=ti.static(self.serial))
+        for i_p in range(model.particle_count):
             self.start.x[i_p], self.start.v[i_p] = state.x[i_p], state.v[i_p]
             if model.particle_inv_mass[i_p] == 0:
                 self.candidate.x[i_p], self.candidate.v[i_p] = self.control.pin_target(i_p, t + dt)
@@ -158,6 +158,18 @@ class BackwardEuler(GaussSeidelSweeps, BlockConjugateGradient, Integrator):
 
     @ti.kernel
     def _prepare(self, t: ti.f64, dt: ti.f64, start_weight: ti.f64):
+        """``_prepare_passes``, on one thread where the solve runs on one (``serial``: each
+        parallel pass would cost a hand-off to the thread pool and back, and the effects'
+        passes are many and short)."""
+        if ti.static(self.serial):
+            ti.loop_config(serialize=True)
+            for _ in range(1):
+                self._prepare_passes(t, dt, start_weight)
+        else:
+            self._prepare_passes(t, dt, start_weight)
+
+    @ti.func
+    def _prepare_passes(self, t, dt, start_weight):
         """rhs = h·f(x_c, v_c, t + h) − M·(v_c − v₀), A's blocks at the candidate, and the
         start δ₀ = w·Δv₁ on the free particles (0 elsewhere; ``_start_weight``)."""
         model = self.model
@@ -168,7 +180,7 @@ class BackwardEuler(GaussSeidelSweeps, BlockConjugateGradient, Integrator):
         w = ti.cast(start_weight, model.real)
         forces.prepare(candidate.x, candidate.v, t + dt)
         self.coupled_step[None] = h
-        for i_p in candidate.x:
+        for i_p in range(model.particle_count):
             force = forces.particle_force(candidate.x, candidate.v, i_p, time)
             self.rhs[i_p] = h * force \
                 - model.particle_mass[i_p] * (candidate.v[i_p] - self.start.v[i_p])
@@ -215,17 +227,20 @@ class BackwardEuler(GaussSeidelSweeps, BlockConjugateGradient, Integrator):
         self.inverse_block[i_p] = self.block[i_p].inverse()
 
     @ti.kernel
-    def _accept(self, dt: ti.f64, last_newton: ti.i32):
-        """v_c += δ, x_c = x₀ + h·v_c for the free particles; after the last Newton iteration the
-        step's change v_c − v₀ becomes Δv₁ of the warm start."""
+    def _accept(self, state: ti.template(), dt: ti.f64, last_newton: ti.i32):
+        """v_c += δ, x_c = x₀ + h·v_c for the free particles, the candidate into ``state``;
+        after the last Newton iteration the step's change v_c − v₀ becomes Δv₁ of the warm
+        start."""
         model = self.model
         h = ti.cast(dt, model.real)
-        for i_p in self.candidate.x:
+        ti.loop_config(serialize=ti.static(self.serial))
+        for i_p in range(model.particle_count):
             if self._free(i_p):
                 self.candidate.v[i_p] += self.delta_v[i_p]
                 self.candidate.x[i_p] = self.start.x[i_p] + h * self.candidate.v[i_p]
                 if last_newton:
                     self.last_change[i_p] = self.candidate.v[i_p] - self.start.v[i_p]
+            state.x[i_p], state.v[i_p] = self.candidate.x[i_p], self.candidate.v[i_p]
 
     @ti.kernel
     def _post_step(self, state: ti.template(), t: ti.f64):
