@@ -203,6 +203,58 @@ def test_a_step_that_crosses_ends_with_the_pair_a_thickness_apart_on_its_side(be
     assert metrics["self_collision_separations"] == separations + 1
 
 
+def test_putting_a_pair_back_stretches_no_spring_past_its_length_before():
+    """Vertex 3 through the face, 2 mm deep, its spring to particle 4 already 50 % over its
+    rest length and sloping 10° down from it, so that lifting the vertex lengthens the spring
+    by ~0.8 mm: the post step puts the vertex back above the face and shortens the spring to its
+    length before the step's sweeps, moving both ends along it (vertex 3 stays above)."""
+    forces, state, out, effect = two_triangle_physics()
+    slope = np.radians(10.0)
+    before = vertex_over_the_triangle(0.004)
+    after = vertex_over_the_triangle(-0.002)
+    for positions in (before, after):
+        positions[4] = positions[3] + 1.5 * np.array([np.cos(slope), -np.sin(slope), 0.0])
+    self_collision_force(before)
+    finish_step(effect, state)
+    state.x.from_numpy(after)
+    state.v.fill(0.0)
+    finish_step(effect, state)
+    x = state.x.to_numpy()
+    assert np.linalg.norm(x[4] - x[3]) == pytest.approx(1.5, rel=1e-12)
+    assert 0.5 * SEPARATION * THICKNESS < x[3, 1] - x[0, 1]  # above the face, still apart
+    assert effect.frame_metrics(x)["self_collision_crossed"] == 0
+    np.testing.assert_allclose(MASS @ (x - after), 0.0, atol=1e-12)
+
+
+def test_a_crossing_that_no_triangles_witness_is_not_undone_into_meeting_ones():
+    """Triangle 3–4–5 goes from above triangle 0–1–2 to wholly below it in one step, vertex 3
+    through the face, 4 and 5 past its sides (the way a hem goes round another layer's border):
+    the record says the pair crossed, but no triangles meet. Putting vertex 3 back above would
+    make its edges pierce the face, so the post step leaves the positions as they are, counts a
+    refusal, and the pair takes the side it is on: the penalty then pushes vertex 3 down."""
+    forces, state, out, effect = two_triangle_physics()
+    before = np.array([[-1.0, 0, -1], [1, 0, -1], [0, 0, 1],
+                       [0.1, 0.004, 0.2], [1.4, 0.004, 0.2], [0.1, 0.004, 1.5]])
+    after = before.copy()
+    after[3:, 1] = -0.002
+    after[4, 0], after[5, 2] = 0.4, 0.5
+    self_collision_force(before)
+    finish_step(effect, state)
+    counts = effect.frame_metrics(before)
+    state.x.from_numpy(after)
+    state.v.fill(0.0)
+    finish_step(effect, state)
+    x = state.x.to_numpy()
+    np.testing.assert_array_equal(x, after)
+    metrics = effect.frame_metrics(x)
+    assert metrics["self_collision_refusals"] == counts["self_collision_refusals"] + 1
+    assert metrics["self_collision_separations"] == counts["self_collision_separations"]
+    assert metrics["self_collision_crossed"] == 0
+    forces.evaluate(state.x, state.v, 0.0, out)
+    assert out.to_numpy()[3, 1] == pytest.approx(-MASS[3] * K_HAT * (THICKNESS - 0.002),
+                                                 rel=1e-9)
+
+
 @pytest.mark.parametrize("mend", ["next step", "repair"])
 def test_a_vertex_that_comes_through_the_face_from_beyond_the_reach_in_one_step_is_put_back(mend):
     """Vertex 3 three centimetres above the triangle (beyond the list's reach) after a step and
