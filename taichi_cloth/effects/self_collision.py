@@ -50,8 +50,8 @@ from taichi_cloth.effects.candidate_pairs import CandidatePairs
 from taichi_cloth.effects.penalty import (normal_force_magnitude, penalty_damping_block,
                                           penalty_force)
 from taichi_cloth.effects.proximity import VERTEX_TRIANGLE, pair_geometry
+from taichi_cloth.effects.piercing import intersections_around
 from taichi_cloth.errors import InputError
-from taichi_cloth.physics.intersections import intersections_around
 from taichi_cloth.settings import setting
 
 PADDING = 1.0  # the list's padding in thicknesses: rebuilt after half of it is deformed
@@ -248,7 +248,7 @@ class SelfCollision(Effect):
         inverse masses; pinned particles do not move), and the same for the velocities when
         Σ_i b_i·v_i·σn < 0. Momentum is kept (Σ b_i = 0); the pair's record is back on its side;
         ``moved`` counts it. Unless no triangles around the pair passed through each other
-        before the move and some do after (``intersections.intersections_around``): then no
+        before the move and some do after (``piercing.intersections_around``): then no
         crossing witnesses the record (a hem gone round another layer's border between two
         points of the path), the particles stay where they were, the record takes the side the
         pair is on, and ``refusals`` counts it."""
