@@ -15,7 +15,10 @@ Genesis' ``force_fields.py``). What an effect declares:
   inside the spring pass, ``model_options``).
 - ``prepare(x, v, t)``: a ``@ti.func`` run once per force evaluation before the particle loops
   (posing the capsules; the contact of the surface samples, which particles then gather);
-  nothing by default.
+  nothing by default. A serial integrator may run it inside one serial loop (no thread-pool
+  hand-offs), unless ``arranges_own_passes`` (its passes keep the serial and parallel loops it
+  gives them: self-collision's rebuild, whose walks inlined into one serial loop compile 13 s
+  longer).
 - ``has_jacobian`` and ``local_jacobian(model, x, v, i_p, t, definite)``: its per-particle blocks
   (∂f_i/∂x_i, ∂f_i/∂v_i) for the implicit solver, or ``has_jacobian = False`` when it has none
   (a constant force). An effect that couples particles (bending) sets ``has_coupled_jacobian``
@@ -73,6 +76,7 @@ class Effect:
     has_jacobian = False
     has_coupled_jacobian = False
     needs_body = False  # the scene must have a [body] section
+    arranges_own_passes = False  # ``prepare``'s loops stay as it configures them
     uniform_acceleration = None
     post_step = None
 

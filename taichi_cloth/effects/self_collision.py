@@ -83,6 +83,7 @@ class SelfCollision(Effect):
     name = "self_collision"
     Settings = SelfCollisionSettings
     has_jacobian = True
+    arranges_own_passes = True  # the list's build: serial fills, parallel walks
 
     def __init__(self, settings: SelfCollisionSettings, context: EffectContext):
         super().__init__(settings, context)

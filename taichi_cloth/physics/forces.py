@@ -67,6 +67,21 @@ class Forces:
             self.effects[e].prepare(x, v, t)
 
     @ti.func
+    def prepare_serially(self, x, v, t):
+        """``prepare`` with each effect's passes inside a serial loop of their own (no hand-off
+        to the thread pool; each effect one task, compiled apart), but an effect that
+        ``arranges_own_passes``."""
+        for e in ti.static(range(len(self.effects))):
+            if ti.static(self.effects[e].arranges_own_passes):
+                self.effects[e].prepare(x, v, t)
+            else:
+                ti.loop_config(serialize=True)
+                for _ in range(1):
+                    self.effects[e].prepare(x, v, t)
+        if ti.static(self.has_packed):
+            self.packed.spring_pass(x, v)
+
+    @ti.func
     def prepare(self, x, v, t):
         """Everything ``particle_force`` reads at (x, v, t) that serves all particles:
         ``prepare_effects``, then on a packed grid the SIMD spring pass."""

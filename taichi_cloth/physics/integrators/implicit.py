@@ -158,28 +158,23 @@ class BackwardEuler(GaussSeidelSweeps, BlockConjugateGradient, Integrator):
 
     @ti.kernel
     def _prepare(self, t: ti.f64, dt: ti.f64, start_weight: ti.f64):
-        """``_prepare_passes``, on one thread where the solve runs on one (``serial``: each
-        parallel pass would cost a hand-off to the thread pool and back, and the effects'
-        passes are many and short)."""
-        if ti.static(self.serial):
-            ti.loop_config(serialize=True)
-            for _ in range(1):
-                self._prepare_passes(t, dt, start_weight)
-        else:
-            self._prepare_passes(t, dt, start_weight)
-
-    @ti.func
-    def _prepare_passes(self, t, dt, start_weight):
         """rhs = h·f(x_c, v_c, t + h) − M·(v_c − v₀), A's blocks at the candidate, and the
-        start δ₀ = w·Δv₁ on the free particles (0 elsewhere; ``_start_weight``)."""
+        start δ₀ = w·Δv₁ on the free particles (0 elsewhere; ``_start_weight``). Where the
+        solve runs on one thread (``serial``) so do the effects' passes and the particle loop:
+        each parallel pass would cost a hand-off to the thread pool and back for microseconds
+        of work (``Forces.prepare_serially``)."""
         model = self.model
         forces = self.forces
         candidate = self.candidate
         h = ti.cast(dt, model.real)
         time = ti.cast(t + dt, model.real)  # backward Euler: forces at the step's end time
         w = ti.cast(start_weight, model.real)
-        forces.prepare(candidate.x, candidate.v, t + dt)
+        if ti.static(self.serial):
+            forces.prepare_serially(candidate.x, candidate.v, t + dt)
+        else:
+            forces.prepare(candidate.x, candidate.v, t + dt)
         self.coupled_step[None] = h
+        ti.loop_config(serialize=ti.static(self.serial))
         for i_p in range(model.particle_count):
             force = forces.particle_force(candidate.x, candidate.v, i_p, time)
             self.rhs[i_p] = h * force \
