@@ -22,8 +22,8 @@ A pair remembers which side of each other its primitives belong on (``crossing_h
 its closest points stay inside (over the face; within both edges) d is signed, so a pair that
 has passed through itself is pushed back, not further through; and after every step
 (``apply``, the post step) a pair that crossed within it is put back on its side, without
-stretching the springs past their length before (``_unstretch``) and not where that would make
-triangles meet that did not (a record that no crossing witnesses gives way).
+stretching the springs past their length before (``_unstretch``) and not where that would leave
+more edges through faces around it (a record that no crossing witnesses gives way).
 
 Candidate pairs (``effects/candidate_pairs.py``): every pair within the reach, thickness +
 padding, in one compact list, rebuilt only when the cloth has deformed (its best rigid motion
@@ -248,11 +248,12 @@ class SelfCollision(Effect):
         σ·n the normal of its side): x_i += λ·b_i·w_i·σn with λ = −C / Σ_i b_i²·w_i (w the
         inverse masses; pinned particles do not move), and the same for the velocities when
         Σ_i b_i·v_i·σn < 0. Momentum is kept (Σ b_i = 0); the pair's record is back on its side;
-        ``moved`` counts it. Unless no triangles around the pair passed through each other
-        before the move and some do after (``piercing.intersections_around``): then no
-        crossing witnesses the record (a hem gone round another layer's border between two
-        points of the path), the particles stay where they were, the record takes the side the
-        pair is on, and ``refusals`` counts it."""
+        ``moved`` counts it. Unless the move leaves more edges through faces around the pair
+        than it found (``piercing.intersections_around``): then the particles stay where they
+        were (``refusals`` counts it), and if there were none before, no crossing witnesses the
+        record (a hem gone round another layer's border between two points of the path) and
+        it takes the side the pair is on; else the record stays and the penalty pushes the
+        pair its way."""
         real = self.model.real
         inverse_mass = ti.static(self.model.particle_inv_mass)
         record = self.pairs.record(k)
@@ -306,13 +307,14 @@ class SelfCollision(Effect):
                             for slot in ti.static(range(4)):
                                 state.x[ids[slot]] += lift * share[slot] \
                                     * inverse_mass[ids[slot]] * side * normal
-                        elif meeting == 0 and count > 0:
+                        elif count > meeting:
                             refused = 1
                     if refused:
                         for slot in ti.static(range(4)):
                             state.x[ids[slot]] = unmoved[slot]
-                        self.pairs.set_record(k, crossing_history.commit(
-                            crossing_history.UNKNOWN, inside, height))
+                        if meeting == 0:  # nothing witnesses the record: it gives way
+                            self.pairs.set_record(k, crossing_history.commit(
+                                crossing_history.UNKNOWN, inside, height))
                         self.refusals[None] += 1
                     else:
                         for slot in ti.static(range(4)):
