@@ -49,8 +49,8 @@ from taichi_cloth.effects.base import Effect, EffectContext
 from taichi_cloth.effects.candidate_pairs import CandidatePairs
 from taichi_cloth.effects.penalty import (normal_force_magnitude, penalty_damping_block,
                                           penalty_force)
-from taichi_cloth.effects.proximity import VERTEX_TRIANGLE, pair_geometry
 from taichi_cloth.effects.piercing import intersections_around
+from taichi_cloth.effects.proximity import VERTEX_TRIANGLE, pair_geometry
 from taichi_cloth.errors import InputError
 from taichi_cloth.settings import setting
 
@@ -295,6 +295,8 @@ class SelfCollision(Effect):
                     lift = (real(SEPARATION * self.thickness) - side * height) / weight
                     stop = ti.max(-approach, 0.0) / weight
                     unmoved = [state.x[ids[slot]] for slot in ti.static(range(4))]
+                    moves = [share[slot] * inverse_mass[ids[slot]] * side * normal
+                             for slot in ti.static(range(4))]
                     first_slots = 1 if kind == VERTEX_TRIANGLE else 2
                     # the edges through faces around the pair before and after the move (one
                     # inlined piercing test for both)
@@ -305,8 +307,7 @@ class SelfCollision(Effect):
                         if round_ == 0:
                             meeting = count
                             for slot in ti.static(range(4)):
-                                state.x[ids[slot]] += lift * share[slot] \
-                                    * inverse_mass[ids[slot]] * side * normal
+                                state.x[ids[slot]] += lift * moves[slot]
                         elif count > meeting:
                             refused = 1
                     if refused:
@@ -318,8 +319,7 @@ class SelfCollision(Effect):
                         self.refusals[None] += 1
                     else:
                         for slot in ti.static(range(4)):
-                            move = share[slot] * inverse_mass[ids[slot]] * side * normal
-                            state.v[ids[slot]] += stop * move
+                            state.v[ids[slot]] += stop * moves[slot]
                             self.lifted[ids[slot]] = 1
                         self.pairs.set_record(k, int(side) * crossing_history.INSIDE)
                         self.moved[None] += 1
