@@ -5,6 +5,14 @@ scattering with atomic adds, so a run is bit-reproducible on the CPU."""
 import numpy as np
 
 
+def scatter_sum(index: np.ndarray, values: np.ndarray, count: int) -> np.ndarray:
+    """Σ of the rows of ``values`` (K, 3) by ``index`` (K,) into (count, 3): ``np.add.at``'s
+    result in the same order, one ``np.bincount`` per column (~10× faster, for the host-side
+    estimates run at start-up)."""
+    return np.stack([np.bincount(index, values[:, c], minlength=count)
+                     for c in range(values.shape[1])], axis=1)
+
+
 def gather_lists(pairs: np.ndarray, particle_count: int):
     """CSR lists of what each particle touches: (start (N+1,), item (K,), other (K,)).
 

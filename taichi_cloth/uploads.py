@@ -2,11 +2,16 @@
 
 ``field.from_numpy`` launches a kernel of Taichi's own, compiled once per field: a simulation's
 few dozen fields cost as many kernel builds at start-up (each loaded from the offline cache and
-linked, ~20–45 ms on the 2-core machine). ``upload`` copies a whole batch of scalar and vector
-fields in one kernel, compiled once per batch: every real value travels as float64 and is
+linked, ~20–45 ms on the 2-core machine). ``upload`` copies a whole batch of scalar, vector and
+matrix fields in one kernel, compiled once per batch: every real value travels as float64 and is
 rounded to the field's type in the kernel (round to nearest, as NumPy's ``astype`` does, so the
-fields hold the same bits as after ``from_numpy``), every integer as int32.
+fields hold the same bits as after ``from_numpy``), every integer as int32. Even so each launch
+costs ~40 ms to load at start-up, so a simulation gathers all of its copies in one
+``UploadBatch`` (the model's) and sends them together once every field is allocated (which also
+keeps its fields in one SNode tree).
 """
+
+import warnings
 
 import numpy as np
 import taichi as ti
@@ -14,50 +19,95 @@ import taichi as ti
 
 @ti.kernel
 def _copy(layout: ti.template(), reals: ti.types.ndarray(dtype=ti.f64, ndim=1),
-          integers: ti.types.ndarray(dtype=ti.i32, ndim=1)):
-    """For each (field, offset, strides, width, integer) of ``layout``: every element of the
-    field (its ``width`` components, 0 for a scalar field) from the flat array at offset + Σ
-    index·stride (C order)."""
-    for k in ti.static(range(len(layout))):
-        field, offset, strides, width, integer = ti.static(layout[k])
-        for index in ti.grouped(field):
-            flat = offset
-            for d in ti.static(range(len(strides))):
-                flat += index[d] * strides[d]
-            if ti.static(width == 0):
-                if ti.static(integer):
-                    field[index] = integers[flat]
-                else:
-                    field[index] = ti.cast(reals[flat], field.dtype)
-            else:
-                for c in ti.static(range(width)):
+          integers: ti.types.ndarray(dtype=ti.i32, ndim=1), longest: ti.i32):
+    """For each (field, offset, components, integer) of ``layout``: element e (C order) of the
+    field, its ``components`` values (1 for a scalar field, n·m of a matrix in row order), from
+    the flat array at offset + e·components. One loop over the elements of the longest field
+    serves every field (a loop per field made a kernel that took ~4× as long to load from the
+    offline cache)."""
+    for element in range(longest):
+        for k in ti.static(range(len(layout))):
+            field, offset, components, integer = ti.static(layout[k])
+            if element < ti.static(field_size(field)):
+                flat = offset + element * components
+                for c in ti.static(range(components)):
                     if ti.static(integer):
-                        field[index][c] = integers[flat + c]
+                        _store(field, element, c, integers[flat + c])
                     else:
-                        field[index][c] = ti.cast(reals[flat + c], field.dtype)
+                        _store(field, element, c, ti.cast(reals[flat + c], field.dtype))
+
+
+@ti.func
+def _store(field: ti.template(), element, component: ti.template(), value):
+    """Component ``component`` of element ``element`` (C order) of ``field`` = value."""
+    shape = ti.static(field.shape)
+    if ti.static(len(shape) == 0):
+        _store_at(field, None, component, value)
+    else:
+        index = ti.Vector([element // ti.static(int(np.prod(shape[d + 1:], dtype=np.int64)))
+                           % ti.static(shape[d]) for d in ti.static(range(len(shape)))])
+        _store_at(field, index, component, value)
+
+
+@ti.func
+def _store_at(field: ti.template(), index: ti.template(), component: ti.template(), value):
+    if ti.static(not hasattr(field, "n")):
+        field[index] = value
+    elif ti.static(field.m == 1):
+        field[index][component] = value
+    else:
+        field[index][component // field.m, component % field.m] = value
+
+
+def field_size(field) -> int:
+    """The number of elements of a field (the product of its shape; 1 for a 0-d field)."""
+    return int(np.prod(field.shape, dtype=np.int64))
 
 
 def upload(pairs) -> None:
-    """Copy each (field, array) of ``pairs`` into its field (scalar or vector fields of any
-    shape; the array of the field's shape, then the vector's; integer and boolean fields from
-    integer or boolean arrays) in one kernel launch."""
+    """Copy each (field, array) of ``pairs`` into its field (scalar, vector or matrix fields of
+    any shape, 0-d included; the array of the field's shape, then the element's; integer and
+    boolean fields from integer or boolean arrays) in one kernel launch."""
     reals, integers, layout = [], [], []
     sizes = {True: 0, False: 0}
     for field, array in pairs:
         array = np.asarray(array)
-        width = field.n if hasattr(field, "n") else 0
-        if width and field.m != 1:
-            raise ValueError("upload: matrix fields are not supported, use from_numpy")
-        expected = field.shape + ((width,) if width else ())
+        element = (field.n,) if hasattr(field, "n") and field.m == 1 else \
+            (field.n, field.m) if hasattr(field, "n") else ()
+        expected = tuple(field.shape) + element
         if array.shape != expected:
             raise ValueError(f"upload: an array of shape {array.shape} for a field of {expected}")
         integer = bool(np.issubdtype(array.dtype, np.integer) or array.dtype == np.bool_)
-        element = max(width, 1)
-        strides = tuple(int(np.prod(field.shape[d + 1:], dtype=np.int64)) * element
-                        for d in range(len(field.shape)))
         (integers if integer else reals).append(array.ravel())
-        layout.append((field, sizes[integer], strides, width, integer))
+        layout.append((field, sizes[integer], int(np.prod(element, dtype=np.int64)), integer))
         sizes[integer] += array.size
-    _copy(tuple(layout),
-          np.concatenate(reals).astype(np.float64) if reals else np.zeros(1),
-          np.concatenate(integers).astype(np.int32) if integers else np.zeros(1, np.int32))
+    if not layout:
+        return
+    with warnings.catch_warnings():  # a branch per field is the design: unrolled on purpose
+        warnings.filterwarnings("ignore", "You are unrolling", SyntaxWarning)
+        _copy(tuple(layout),
+              np.concatenate(reals).astype(np.float64) if reals else np.zeros(1),
+              np.concatenate(integers).astype(np.int32) if integers else np.zeros(1, np.int32),
+              max(field_size(field) for field, _ in pairs))
+
+
+class UploadBatch:
+    """Copies gathered until ``send``, then made in one ``upload`` (one kernel launch, after
+    every field of the batch's owner is allocated); once sent, a copy added is made at once."""
+
+    def __init__(self):
+        self._pairs = []
+        self.sent = False
+
+    def add(self, pairs) -> None:
+        """Copy each (field, array) of ``pairs`` into its field (``upload``): at ``send``, or
+        now if the batch was sent."""
+        if self.sent:
+            upload(pairs)
+        else:
+            self._pairs.extend(pairs)
+
+    def send(self) -> None:
+        """Make every copy gathered so far, in one launch."""
+        pairs, self._pairs, self.sent = self._pairs, [], True
+        upload(pairs)

@@ -35,7 +35,7 @@ def assemble(model: Model, effects=(), packed: bool = False, integrator: str | N
                       np.asarray(capsule_radius, dtype=float), sample_count)
     context = EffectContext(model, control)
     built = [effect(settings, context) for effect, settings in effects]
-    control.upload()
+    control.upload(model.uploads)
     for effect in built:
         effect.upload()
     forces = Forces(model, built, packed_grid_for(model, packed))
@@ -43,6 +43,7 @@ def assemble(model: Model, effects=(), packed: bool = False, integrator: str | N
     if integrator is not None:
         stepper = make_integrator(integrator, forces, control, post_step) if not options else \
             make_integrator(integrator, forces, control, post_step, **options)
+    model.uploads.send()  # every field filled now: a test may set the tracks next
     return Physics(model, control, built, forces, stepper)
 
 

@@ -1,11 +1,12 @@
-"""``uploads.upload`` fills fields exactly as ``from_numpy`` does, in one launch;
-``gather.side_lists`` splits CSR rows for the Gauss–Seidel sweeps."""
+"""``uploads.upload`` fills fields exactly as ``from_numpy`` does, in one launch, and an
+``UploadBatch`` holds its copies until sent; ``gather.side_lists`` splits CSR rows for the
+Gauss–Seidel sweeps."""
 
 import numpy as np
 import pytest
 import taichi as ti
 
-from taichi_cloth.uploads import upload
+from taichi_cloth.uploads import UploadBatch, upload
 
 
 def test_a_batch_of_fields_holds_the_bits_from_numpy_gives():
@@ -26,6 +27,30 @@ def test_a_batch_of_fields_holds_the_bits_from_numpy_gives():
     for name in ("f64", "lanes", "ints", "flags"):
         held = fields[name].to_numpy()
         assert np.array_equal(held, arrays[name].astype(held.dtype))
+
+
+def test_matrix_and_zero_dimensional_fields_are_filled_component_by_component():
+    rotation = np.arange(9.0).reshape(3, 3) / 7.0
+    blocks = np.random.default_rng(4).standard_normal((4, 2, 3))
+    fields = (ti.Matrix.field(3, 3, ti.f64, ()), ti.Matrix.field(2, 3, ti.f32, 4),
+              ti.field(ti.i32, ()))
+    upload([(fields[0], rotation), (fields[1], blocks), (fields[2], np.array(7))])
+    assert np.array_equal(fields[0].to_numpy(), rotation)
+    assert np.array_equal(fields[1].to_numpy(), blocks.astype(np.float32))
+    assert fields[2][None] == 7
+
+
+def test_a_batch_copies_nothing_until_sent_then_everything_at_once():
+    early, late = ti.field(ti.f32, 3), ti.field(ti.i32, 2)
+    batch = UploadBatch()
+    batch.add([(early, np.array([1.0, 2.0, 3.0]))])
+    batch.add([(late, np.array([4, 5]))])
+    assert not early.to_numpy().any() and not late.to_numpy().any()
+    batch.send()
+    assert early.to_numpy().tolist() == [1.0, 2.0, 3.0] and late.to_numpy().tolist() == [4, 5]
+    after = ti.field(ti.f32, 1)
+    batch.add([(after, np.array([6.0]))])  # once sent, a copy is made at once
+    assert after[0] == 6.0
 
 
 def test_an_array_of_the_wrong_shape_is_refused():

@@ -32,7 +32,8 @@ Genesis' ``force_fields.py``). What an effect declares:
 - ``stability_modes()``: the (k̂ [1/s²], ζ) of each stiff mode it adds, for ``dt = "auto"``.
 - ``potential_energy(x, mass)`` [J], ``penetration_depths(points)`` [m] and ``frame_metrics(x)`` (more
   per-frame values for ``stats.json``, by name): its metrics.
-- ``upload()``: fill its fields once every effect has allocated its own (one SNode tree).
+- ``upload()``: add the copies into its fields to the model's ``uploads`` (sent in one launch
+  once every field of the simulation is allocated: one SNode tree).
 - ``post_step``: an object with a ``@ti.func apply(state, t)`` to run after every substep (the
   contact projection; self-collision's side records), or None.
 - ``back_up()``, ``roll_back()`` and ``forget_history()``: what it carries from step to step
@@ -109,7 +110,8 @@ class Effect:
         return {}
 
     def upload(self) -> None:
-        """Fill the fields allocated in ``__init__``: none here."""
+        """Add the copies into the fields allocated in ``__init__`` to the model's
+        ``uploads``: none here."""
 
     @ti.func
     def prepare(self, x, v, t):

@@ -38,9 +38,8 @@ import numpy as np
 import taichi as ti
 
 from taichi_cloth.effects.base import Effect, EffectContext
-from taichi_cloth.gather import side_lists
+from taichi_cloth.gather import scatter_sum, side_lists
 from taichi_cloth.settings import setting
-from taichi_cloth.uploads import upload
 
 
 @dataclass(frozen=True)
@@ -106,6 +105,9 @@ class Bending(Effect):
         self.host_row_start, self.host_row_neighbor, self.host_row_coefficient, \
             self.host_diagonal = hessian_rows(stencils, self.host_weights, self.host_rigidity,
                                               model.particle_count)
+        # the particle whose row each entry is in (the host products for dt = "auto")
+        self.host_row_owner = np.repeat(np.arange(model.particle_count),
+                                        np.diff(self.host_row_start))
         real = model.real
         entries = max(1, len(self.host_row_neighbor))
         self.row_start = ti.field(ti.i32, model.particle_count + 1)
@@ -118,14 +120,14 @@ class Bending(Effect):
         self.dashpot_time = model.dashpot_time or 0.0  # β [s]: c_e = β·B_e
 
     def upload(self) -> None:
-        """Fill the fields (after every allocation: one SNode tree, ``physics/control.py``)."""
+        """Its fields' copies, into the model's ``uploads``."""
         real = self.model.numpy_real
         rows = [(self.row_neighbor, self.host_row_neighbor),
                 (self.row_coefficient, self.host_row_coefficient.astype(real))] \
             if len(self.host_row_neighbor) else []
-        upload([*rows, (self.row_start, self.host_row_start),
-                (self.row_split, self.host_row_split),
-                (self.diagonal, self.host_diagonal.astype(real))])
+        self.model.uploads.add([*rows, (self.row_start, self.host_row_start),
+                                (self.row_split, self.host_row_split),
+                                (self.diagonal, self.host_diagonal.astype(real))])
 
     @ti.func
     def _row_product(self, u, i_p):
@@ -185,13 +187,11 @@ class Bending(Effect):
 
     def rest_stiffness_product(self, u: np.ndarray) -> np.ndarray:
         """K·u = H·u of the bending Hessian (−∂f/∂x, positive semi-definite) [N], for ω_max."""
-        owner = np.repeat(np.arange(len(u)), np.diff(self.host_row_start))
-        product = self.host_diagonal[:, None] * u
-        np.add.at(product, owner, self.host_row_coefficient[:, None] * u[self.host_row_neighbor])
-        return product
+        return self.host_diagonal[:, None] * u + scatter_sum(
+            self.host_row_owner, self.host_row_coefficient[:, None] * u[self.host_row_neighbor],
+            len(u))
 
     def stiffness_row_sums(self, particle_count: int) -> np.ndarray:
         """Σ_b |H_ab| per particle a [N/m] (a Gershgorin bound on the Hessian's rows)."""
-        owner = np.repeat(np.arange(particle_count), np.diff(self.host_row_start))
         return np.abs(self.host_diagonal) + np.bincount(
-            owner, np.abs(self.host_row_coefficient), minlength=particle_count)
+            self.host_row_owner, np.abs(self.host_row_coefficient), minlength=particle_count)

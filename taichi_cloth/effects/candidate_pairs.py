@@ -30,7 +30,6 @@ import taichi as ti
 from taichi_cloth.effects.pair_records import PairRecords
 from taichi_cloth.effects.proximity import EDGE_EDGE, VERTEX_TRIANGLE
 from taichi_cloth.effects.spatial_hash import BoxGrid
-from taichi_cloth.uploads import upload
 
 # Capacities: with the reach near its largest (thickness just below half the shortest edge), a
 # sheet folded onto itself, the layers a thickness apart and jittered by a quarter of it, finds
@@ -80,9 +79,9 @@ class CandidatePairs(PairRecords):
 
     def upload(self) -> None:
         triangles, edges = self._host
-        upload([(self.corners, triangles.astype(np.int32)), (self.ends, edges.astype(np.int32))])
-        self.rotation.from_numpy(np.eye(3))
-        self.rebuild_asked[None] = 1
+        self.model.uploads.add([(self.corners, triangles.astype(np.int32)),
+                                (self.ends, edges.astype(np.int32)),
+                                (self.rotation, np.eye(3)), (self.rebuild_asked, np.array(1))])
 
     # what the list carries from step to step: the finds with their records (the list and the
     # entries follow from them), the positions the records and the rebuild test refer to

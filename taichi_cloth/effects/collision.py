@@ -25,7 +25,6 @@ from taichi_cloth.effects.penalty import (PenaltySettings, capsule_penetration_d
                                           closest_on_segment, penalty_blocks, penalty_force)
 from taichi_cloth.gather import incidence_lists
 from taichi_cloth.settings import setting
-from taichi_cloth.uploads import upload
 
 MASK_BITS = 31  # capsules a particle's near-mask can hold (more: every sample tests them all)
 MASK_SLACK = 0.5  # of the longest rest edge: how far the masks reach beyond what they must hold
@@ -135,8 +134,7 @@ class CapsuleContact(Effect):
         self._sample_tables = (corners, weights, sample_mass, start, item, weights[item, slot])
 
     def upload(self) -> None:
-        """The capsule radii (and the surface samples) into their fields (after every
-        allocation: one SNode tree)."""
+        """The capsule radii (and the surface samples), into the model's ``uploads``."""
         pairs = [(self.capsule_radius, self._host_radius)]
         if self.surface:
             real = self.model.numpy_real
@@ -148,7 +146,7 @@ class CapsuleContact(Effect):
                       (self.sample_mass, sample_mass.astype(real)),
                       (self.particle_sample_start, start), (self.particle_sample, item),
                       (self.particle_sample_weight, item_weight.astype(real))]
-        upload(pairs)
+        self.model.uploads.add(pairs)
 
     @ti.func
     def prepare(self, x, v, t):

@@ -15,7 +15,7 @@ Times outside the sampled span clamp to its ends.
 import numpy as np
 import taichi as ti
 
-from taichi_cloth.uploads import upload
+from taichi_cloth.uploads import UploadBatch, upload
 
 
 @ti.data_oriented
@@ -101,15 +101,18 @@ class Control:
             if self.capsule_count else None
         self._rest_positions = rest_positions
 
-    def upload(self) -> None:
-        """Fill the fields: pins held at their rest positions. Called once the effects have
-        allocated theirs too: a copy is a kernel launch, which closes Taichi's current SNode tree,
-        and a process may hold only ~500 trees, so fields are allocated together."""
+    def upload(self, batch: UploadBatch | None = None) -> None:
+        """Fill the fields, pins held at their rest positions: now, or with ``batch`` (the
+        model's ``uploads``, sent once every field is allocated: one SNode tree)."""
         slot = np.full(len(self._rest_positions), -1, dtype=np.int32)
         slot[self.pinned_particles] = np.arange(len(self.pinned_particles), dtype=np.int32)
         held = self.pin_track.held(self._rest_positions[self.pinned_particles]) \
             if len(self.pinned_particles) else []
-        upload([(self.pin_slot, slot), *held])
+        pairs = [(self.pin_slot, slot), *held]
+        if batch is None:
+            upload(pairs)
+        else:
+            batch.add(pairs)
 
     @ti.func
     def pin_target(self, i_p, t):

@@ -2,7 +2,11 @@
 
 As in warp/newton's ``Model``/``State`` split: the model holds inverse masses, springs, rest
 lengths, stiffnesses and the gather lists; ``model.state()`` makes a fresh state (positions and
-velocities) and the substep loop swaps two of them. Fields are allocated once, from NumPy.
+velocities) and the substep loop swaps two of them. Fields are allocated once, from NumPy:
+the model's ``uploads`` gathers its own copies and those of whatever is built on it (control,
+effects, packed grid, integrator), and ``states`` sends them with the states' own, in one
+kernel launch once every field is allocated (``uploads.UploadBatch``; a launch closes Taichi's
+current SNode tree, and a process may hold only ~500 trees).
 
 Forces are gathered, never scattered: every particle owns the list of its springs
 (``particle_spring_start``/``particle_spring``/``particle_neighbor``) and of its triangles, so a
@@ -22,7 +26,7 @@ import taichi as ti
 from taichi_cloth.cloth.garment import Garment
 from taichi_cloth.gather import gather_lists, triangle_gather_lists
 from taichi_cloth.physics.packed_grid import grid_stencil
-from taichi_cloth.uploads import upload
+from taichi_cloth.uploads import UploadBatch
 
 FAMILY_ORDER = ("stretch", "shear", "bend")
 
@@ -92,20 +96,19 @@ class Model:
         self.particle_triangle = ti.field(ti.i32, len(triangle_item))
         damping = (damping_scale or 0.0) * garment.damping_time * stiffness
         self.grid = grid_stencil(garment, ends, rest_length, stiffness, damping, real)
-        # Every field is allocated before the first copy: a copy is a kernel launch, which
-        # closes Taichi's current SNode tree, and a process may hold only ~500 trees.
-
-        upload([(self.particle_mass, self._real(garment.mass)),
-                (self.particle_inv_mass, self._real(inv_mass)), (self.spring_ends, ends),
-                (self.spring_rest_length, self._real(rest_length)),
-                (self.spring_stiffness, self._real(stiffness)),
-                (self.spring_damping, self._real(damping)),
-                (self.particle_spring_start, spring_start), (self.particle_spring, spring_item),
-                (self.particle_neighbor, spring_other), (self.triangles, garment.triangles),
-                (self.particle_triangle_start, triangle_start),
-                (self.particle_triangle, triangle_item)])
+        self.uploads = UploadBatch()  # sent by ``states`` (module docstring)
+        self.uploads.add([
+            (self.particle_mass, self._real(garment.mass)),
+            (self.particle_inv_mass, self._real(inv_mass)), (self.spring_ends, ends),
+            (self.spring_rest_length, self._real(rest_length)),
+            (self.spring_stiffness, self._real(stiffness)),
+            (self.spring_damping, self._real(damping)),
+            (self.particle_spring_start, spring_start), (self.particle_spring, spring_item),
+            (self.particle_neighbor, spring_other), (self.triangles, garment.triangles),
+            (self.particle_triangle_start, triangle_start),
+            (self.particle_triangle, triangle_item)])
         if self.grid is not None:
-            self.grid.upload()
+            self.uploads.add(self.grid.field_values())
 
         # NumPy copies for per-frame metrics and exports (never touched in the substep loop).
         self.host_spring_ends = ends
@@ -124,8 +127,10 @@ class Model:
         return self.states(1)[0]
 
     def states(self, count: int) -> list[State]:
-        """``count`` fresh states, allocated together (one SNode tree) before they are filled."""
+        """``count`` fresh states, allocated together, then filled with every copy ``uploads``
+        holds (module docstring)."""
         states = [State(self.particle_count, self.real) for _ in range(count)]
         start, rest = self._real(self.garment.start_positions), np.zeros((self.particle_count, 3))
-        upload([pair for state in states for pair in ((state.x, start), (state.v, rest))])
+        self.uploads.add([pair for state in states for pair in ((state.x, start), (state.v, rest))])
+        self.uploads.send()
         return states

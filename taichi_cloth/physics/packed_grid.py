@@ -16,7 +16,6 @@ otherwise springs are gathered through the CSR lists one particle at a time.
 import numpy as np
 import taichi as ti
 
-from taichi_cloth.uploads import upload
 
 PACKED_PARTICLE_MINIMUM = 1024  # below it the CSR gather is as fast and compiles in a blink
 SIMD_LANES = 16  # columns per packed group: one AVX-512 register of float32
@@ -56,12 +55,12 @@ class GridStencil:
         self.damping = ti.field(real, (rows, self.slot_count))
         self._tables = (rest_length, stiffness, damping)
 
-    def upload(self) -> None:
-        """Copy the tables into the fields (after the model has allocated all of its own)."""
+    def field_values(self) -> list:
+        """(field, array) of the tables, for the model's ``uploads``."""
         numpy_real = np.float64 if self.rest_length.dtype == ti.f64 else np.float32
-        upload([(self.slot_row_step, np.array([step for step, _ in self.slot_offsets], np.int32)),
+        return [(self.slot_row_step, np.array([step for step, _ in self.slot_offsets], np.int32)),
                 *((table, np.ascontiguousarray(values, dtype=numpy_real)) for table, values in
-                  zip((self.rest_length, self.stiffness, self.damping), self._tables))])
+                  zip((self.rest_length, self.stiffness, self.damping), self._tables))]
 
     def packed_fields(self, real) -> list:
         """Three fields (x, y, z) of SIMD_LANES-vectors indexed [buffer, row, group], so a group
@@ -216,7 +215,7 @@ class PackedGrid:
         self.group_has_pin = ti.field(ti.i32, (grid.rows, grid.group_count))
         self.group_springs = group_pass_function(model, self.packed_x, self.packed_v,
                                                  self._store_spring_force)
-        self._upload_constants()  # after every allocation: one SNode tree (physics/model.py)
+        self._upload_constants()
 
     @ti.func
     def spring_pass(self, x, v):
@@ -248,16 +247,18 @@ class PackedGrid:
                 [f_x[lane], f_y[lane], f_z[lane]])
 
     def _upload_constants(self) -> None:
+        """The lanes' inverse masses and pins, for the model's ``uploads``."""
         grid = self.grid
         inv_mass = self.model.host_inv_mass.reshape(grid.rows, grid.columns)
         lanes = np.zeros((grid.rows, grid.group_count * SIMD_LANES), self.model.numpy_real)
         lanes[:, SIMD_LANES:SIMD_LANES + grid.columns] = inv_mass
         pinned = np.zeros(lanes.shape, dtype=bool)
         pinned[:, SIMD_LANES:SIMD_LANES + grid.columns] = inv_mass == 0
-        upload([(self.wrapping_group, np.array(self.wrapping_groups, np.int32)),
-                (self.packed_inv_mass, lanes.reshape(grid.rows, grid.group_count, SIMD_LANES)),
-                (self.group_has_pin, pinned.reshape(grid.rows, grid.group_count, SIMD_LANES)
-                 .any(axis=2).astype(np.int32))])
+        self.model.uploads.add([
+            (self.wrapping_group, np.array(self.wrapping_groups, np.int32)),
+            (self.packed_inv_mass, lanes.reshape(grid.rows, grid.group_count, SIMD_LANES)),
+            (self.group_has_pin, pinned.reshape(grid.rows, grid.group_count, SIMD_LANES)
+             .any(axis=2).astype(np.int32))])
 
     @ti.func
     def pack(self, x, v, buffer, with_velocity: ti.template()):

@@ -83,14 +83,14 @@ class Simulation:
         integrator_class = INTEGRATORS[scene.simulation.integrator]
         self.effects = build_effects(scene.effects, EffectContext(
             self.model, self.control, integrator_class.uses_jacobian))
-        self.control.upload()
+        self.control.upload(self.model.uploads)
         for effect in self.effects:
             effect.upload()
         self.forces = Forces(self.model, self.effects,
                              packed_grid_for(self.model, integrator_class.packs_springs))
         self.integrator = make_integrator(scene.simulation.integrator, self.forces, self.control,
                                           post_step_of(self.effects), scene.simulation)
-        # scratch for ``total_forces``, allocated with the states (one SNode tree)
+        # scratch for ``total_forces``, allocated before the states send the model's uploads
         self.force_scratch = ti.Vector.field(3, self.model.real, self.model.particle_count)
         self.state_in, self.state_out, self.backup = self.model.states(3)
         self._compiled_variants = set()

@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from taichi_cloth.errors import InputError
+from taichi_cloth.gather import scatter_sum
 from taichi_cloth.physics.integrators.stability import largest_stable_step
 
 IMPLICIT_FRAME_FRACTION = 0.5
@@ -58,10 +59,8 @@ def stiffness_product(ends, stiffness, directions, u):
     """K·u for springs at rest (blocks k·n·nᵀ): minus the linear elastic force of displacements u.
     (K·u)_i = Σ_{springs i–j} k·n·(n·(u_i − u_j))."""
     along = np.einsum("sk,sk->s", u[ends[:, 1]] - u[ends[:, 0]], directions) * stiffness
-    product = np.zeros_like(u)
-    np.add.at(product, ends[:, 0], -along[:, None] * directions)
-    np.add.at(product, ends[:, 1], along[:, None] * directions)
-    return product
+    pull = along[:, None] * directions
+    return scatter_sum(ends[:, 1], pull, len(u)) - scatter_sum(ends[:, 0], pull, len(u))
 
 
 def highest_frequency(positions, ends, stiffness, mass, free, iterations: int = 60,
@@ -71,10 +70,8 @@ def highest_frequency(positions, ends, stiffness, mass, free, iterations: int = 
     Hessian adds to K (``rest_stiffness_product``, ``stiffness_row_sums``: bending)."""
     directions = positions[ends[:, 1]] - positions[ends[:, 0]]
     directions /= np.linalg.norm(directions, axis=1, keepdims=True)
-    row_sum = np.zeros(len(mass))
-    np.add.at(row_sum, ends[:, 0], stiffness)
-    np.add.at(row_sum, ends[:, 1], stiffness)
-    row_sum *= 2.0
+    row_sum = 2.0 * (np.bincount(ends[:, 0], stiffness, minlength=len(mass))
+                     + np.bincount(ends[:, 1], stiffness, minlength=len(mass)))
     for effect in coupled:
         row_sum += effect.stiffness_row_sums(len(mass))
     gershgorin = float(np.max(np.where(free, row_sum / mass, 0.0)))

@@ -76,7 +76,7 @@ def bench_reference(size: int, integrator_name: str, seconds: float, repeats: in
     packed = packed_grid_for(model, INTEGRATORS[integrator_name].packs_springs)
     forces = Forces(model, [Gravity(GravitySettings())], packed)
     control = Control(model.garment.pinned, model.garment.positions, model.real)
-    control.upload()
+    control.upload(model.uploads)
     integrator = make_integrator(integrator_name, forces, control)
     states = model.states(2)
     batch = max(1, min(256, round(2e6 / model.particle_count)))

@@ -32,7 +32,6 @@ import taichi as ti
 
 from taichi_cloth.gather import side_lists
 from taichi_cloth.physics.integrators.conjugate_gradient import finite
-from taichi_cloth.uploads import upload
 
 
 @ti.data_oriented
@@ -48,7 +47,8 @@ class GaussSeidelSweeps:
         entry, split = side_lists(model.host_spring_start, model.host_neighbor)
         self.side_entry = ti.field(ti.i32, max(1, len(entry)))
         self.side_split = ti.field(ti.i32, model.particle_count)
-        upload([(self.side_split, split), *([(self.side_entry, entry)] if len(entry) else [])])
+        model.uploads.add([(self.side_split, split),
+                           *([(self.side_entry, entry)] if len(entry) else [])])
 
     @ti.func
     def _side_product(self, u: ti.template(), i_p, lower: ti.template()):
