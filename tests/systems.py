@@ -38,7 +38,7 @@ def assemble(model: Model, effects=(), packed: bool = False, integrator: str | N
     control.upload(model.uploads)
     for effect in built:
         effect.upload()
-    forces = Forces(model, built, packed_grid_for(model, packed))
+    forces = Forces(model, built, packed_grid_for(model, packed, built))
     stepper = None
     if integrator is not None:
         stepper = make_integrator(integrator, forces, control, post_step) if not options else \

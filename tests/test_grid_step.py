@@ -1,8 +1,9 @@
 """The grid substeps of the Euler integrators against the CSR gather, which shares no code with
 them but the effects: the same motion to float32 rounding, on a periodic grid with dashpots
-(halo columns). Three paths: gravity only (``steps_lanes``: the whole step in SIMD lanes, the
-packed state unpacked at the end of a launch), air drag (the fused loop with a per-particle
-update and re-pack) and a projection pass after every substep (re-packed each substep)."""
+(halo columns). Two paths: gravity only, with curvature bending or with air drag, which act in
+the SIMD pass (``steps_in_lanes``: the whole step in SIMD lanes, the packed state unpacked at
+the end of a launch), and drag with a projection pass after every substep (the fused loop with
+a per-particle update, re-packed each substep)."""
 
 import dataclasses
 import functools
@@ -13,6 +14,7 @@ import taichi as ti
 from systems import assemble
 
 from taichi_cloth.studies.bench import REFERENCE_MATERIAL
+from taichi_cloth.effects.bending import Bending, BendingSettings
 from taichi_cloth.effects.drag import Drag, DragSettings
 from taichi_cloth.effects.gravity import Gravity, GravitySettings
 from taichi_cloth.cloth.garment import build_garment
@@ -60,7 +62,8 @@ def run(packed: bool, serial: bool, variant: str):
     seconds to compile."""
     model = skirt_model()
     effects = [(Gravity, GravitySettings())] + \
-        ([(Drag, DragSettings())] if variant == "drag" else [])
+        ([(Drag, DragSettings())] if variant in ("drag", "projection") else []) + \
+        ([(Bending, BendingSettings())] if variant == "bending" else [])
     physics = assemble(model, effects, packed, "symplectic",
                        post_step=FloorProjection(model) if variant == "projection" else None)
     # the waist ring slides along x at WAIST_SPEED during the run: moving pins
@@ -69,7 +72,7 @@ def run(packed: bool, serial: bool, variant: str):
                                      np.broadcast_to([WAIST_SPEED, 0.0, 0.0], track.shape))
     assert physics.forces.has_packed == packed
     integrator = physics.integrator
-    assert integrator.steps_in_lanes == (packed and variant == "gravity")
+    assert integrator.steps_in_lanes == (packed and variant != "projection")
     integrator.serial = serial
     if not serial:  # 2 unrolled substeps a launch, not 8: the same code, a quarter the compile
         integrator.substep_batch = 2
@@ -85,12 +88,14 @@ def start_positions(model: Model) -> np.ndarray:
     return model.garment.positions * np.array([0.9, 1.0, 0.9])
 
 
-@pytest.mark.parametrize("variant", ["gravity", "drag", "projection"])
+@pytest.mark.parametrize("variant", ["gravity", "bending", "drag", "projection"])
 def test_grid_steps_match_the_gather(variant):
     x_gather, v_gather = run(packed=False, serial=True, variant=variant)
     assert np.abs(x_gather - start_positions(skirt_model())).max() > 5e-3  # it moved
     if variant == "projection":
         assert np.isclose(x_gather[:, 1].min(), FLOOR_Y)  # the projection held some hem up
+    if variant == "bending":  # it bends the skirt (2.8 cm from gravity's run): the lanes have it
+        assert np.abs(x_gather - run(packed=False, serial=True, variant="gravity")[0]).max() > 0.01
     model = skirt_model()
     waist_end = waist(model) + [WAIST_SPEED * RUN_SECONDS, 0, 0]
     np.testing.assert_allclose(x_gather[model.garment.pinned], waist_end, atol=1e-5)  # pins

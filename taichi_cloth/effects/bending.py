@@ -129,6 +129,26 @@ class Bending(Effect):
                                 (self.row_split, self.host_row_split),
                                 (self.diagonal, self.host_diagonal.astype(real))])
 
+    def allocate_lanes(self, grid) -> str | None:
+        """H's rows as a linear stencil of the grid cloth ``grid`` (``GridStencil.lane_slots``):
+        H_ij per lane and slot (``lane_coefficient``, 0 where a lane has no such neighbour),
+        each slot's row step, and β for the dashpot term (f_i = −(H·x)_i − β·(H·v)_i): a
+        "stencil"; None when a row reaches beyond the stencil."""
+        slots = grid.lane_slots(self.host_row_owner, self.host_row_neighbor)
+        if slots is None:
+            return None
+        slot_offsets, self.lane_column_runs, slot = slots
+        table = grid.packed_table(self.host_row_owner, slot, self.host_row_coefficient,
+                                  len(slot_offsets))
+        self.lane_damping = self.dashpot_time
+        self.lane_row_step = ti.field(ti.i32, len(slot_offsets))
+        self.lane_coefficient = ti.Vector.field(table.shape[-1], self.model.real,
+                                                table.shape[:-1])
+        self.model.uploads.add([
+            (self.lane_row_step, np.array([step for step, _ in slot_offsets], np.int32)),
+            (self.lane_coefficient, table.astype(self.model.numpy_real))])
+        return "stencil"
+
     @ti.func
     def _row_product(self, u, i_p):
         """(H·u)_i = Σ_j H_ij·(u_j − u_i) over the row's off-diagonal entries (the same as

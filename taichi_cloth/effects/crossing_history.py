@@ -51,6 +51,13 @@ def commit(record, inside, height):
 
 
 @ti.func
+def record_from_here(inside, height):
+    """The record of a pair with no history, taken from the side it is on now (``commit`` from
+    ``UNKNOWN``): a new pair's, or one whose record nothing witnesses."""
+    return commit(UNKNOWN, inside, height)
+
+
+@ti.func
 def is_crossed(record):
     return ti.abs(record) == CROSSED
 

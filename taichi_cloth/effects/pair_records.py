@@ -92,8 +92,7 @@ class PairRecords:
                 _share, inside, _normal, height, offset = geometry(first, second, third, fourth,
                                                                    self.model.real)
                 if at_reference:
-                    self._find(owner, other, crossing_history.commit(crossing_history.UNKNOWN,
-                                                                     inside, height))
+                    self._find(owner, other, crossing_history.record_from_here(inside, height))
                 elif offset.norm() <= self.model.real(self.reach):
                     record, held = self._held_record(owner, other)
                     if not held and self.committed[None]:

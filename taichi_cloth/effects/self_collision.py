@@ -314,8 +314,8 @@ class SelfCollision(Effect):
                         for slot in ti.static(range(4)):
                             state.x[ids[slot]] = unmoved[slot]
                         if meeting == 0:  # nothing witnesses the record: it gives way
-                            self.pairs.set_record(k, crossing_history.commit(
-                                crossing_history.UNKNOWN, inside, height))
+                            self.pairs.set_record(k, crossing_history.record_from_here(
+                                inside, height))
                         self.refusals[None] += 1
                     else:
                         for slot in ti.static(range(4)):

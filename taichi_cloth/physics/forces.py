@@ -40,6 +40,11 @@ class Forces:
         self.model = model
         self.effects = effects
         self.force_effects = [e for e in effects if e.has_force]
+        # the effects that particles gather, and whose passes ``prepare`` runs: all but those
+        # acting in the packed pass (which need no pass of their own)
+        in_lanes = packed.lane_effects if packed is not None else []
+        self.gathered_effects = [e for e in self.force_effects if e not in in_lanes]
+        self.prepared_effects = [e for e in effects if e not in in_lanes]
         self.jacobian_effects = [e for e in effects if e.has_jacobian]
         self.coupled_effects = [e for e in effects if e.has_coupled_jacobian]
         self.packed = packed
@@ -52,32 +57,33 @@ class Forces:
 
     @property
     def uniform_acceleration(self) -> tuple | None:
-        """Σ of the force effects' uniform accelerations [m/s²] (x, y, z) when every force effect
-        is one (gravity), so that a step can add them per SIMD lane; None otherwise."""
-        if any(e.uniform_acceleration is None for e in self.force_effects):
+        """Σ of the gathered force effects' uniform accelerations [m/s²] (x, y, z) when every
+        one is (gravity; the packed pass has the others), so that a step can add them per SIMD
+        lane; None otherwise."""
+        if any(e.uniform_acceleration is None for e in self.gathered_effects):
             return None
-        return tuple(sum(e.uniform_acceleration[c] for e in self.force_effects)
+        return tuple(sum(e.uniform_acceleration[c] for e in self.gathered_effects)
                      for c in range(3))
 
     @ti.func
     def prepare_effects(self, x, v, t):
         """The effects' passes at (x, v) and time t [s] (capsule poses, contact of the surface
-        samples), before any particle loop."""
-        for e in ti.static(range(len(self.effects))):
-            self.effects[e].prepare(x, v, t)
+        samples), before any particle loop (but those of effects acting in the packed pass)."""
+        for e in ti.static(range(len(self.prepared_effects))):
+            self.prepared_effects[e].prepare(x, v, t)
 
     @ti.func
     def prepare_serially(self, x, v, t):
         """``prepare`` with each effect's passes inside a serial loop of their own (no hand-off
         to the thread pool; each effect one task, compiled apart), but an effect that
         ``arranges_own_passes``."""
-        for e in ti.static(range(len(self.effects))):
-            if ti.static(self.effects[e].arranges_own_passes):
-                self.effects[e].prepare(x, v, t)
+        for e in ti.static(range(len(self.prepared_effects))):
+            if ti.static(self.prepared_effects[e].arranges_own_passes):
+                self.prepared_effects[e].prepare(x, v, t)
             else:
                 ti.loop_config(serialize=True)
                 for _ in range(1):
-                    self.effects[e].prepare(x, v, t)
+                    self.prepared_effects[e].prepare(x, v, t)
         if ti.static(self.has_packed):
             self.packed.spring_pass(x, v)
 
@@ -181,8 +187,8 @@ class Forces:
             f = self.packed.spring_force(i_p)
         else:
             f = self.spring_force(x, v, i_p)
-        for e in ti.static(range(len(self.force_effects))):
-            f += self.force_effects[e].force(self.model, x, v, i_p, t)
+        for e in ti.static(range(len(self.gathered_effects))):
+            f += self.gathered_effects[e].force(self.model, x, v, i_p, t)
         return f
 
     @ti.kernel

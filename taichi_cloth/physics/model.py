@@ -14,7 +14,8 @@ force is a sum in a fixed order and a run is bit-reproducible on the CPU (no ato
 
 A cloth on a regular grid whose springs depend on the row only (sheets and skirts; not a disc
 specimen, whose anisotropic springs change around each ring) also gets a ``GridStencil``
-(``physics.packed_grid``): its springs as a stencil, for the SIMD spring pass.
+(``physics.grid_stencil``): its springs as a stencil, for the SIMD spring pass
+(``physics.packed_grid``).
 
 A pinned particle has inverse mass 0; where it is comes from the prescribed motion
 (``physics.control.Control``), which is not part of the model: the model never changes in a run.
@@ -25,7 +26,7 @@ import taichi as ti
 
 from taichi_cloth.cloth.garment import Garment
 from taichi_cloth.gather import gather_lists, triangle_gather_lists
-from taichi_cloth.physics.packed_grid import grid_stencil
+from taichi_cloth.physics.grid_stencil import grid_stencil
 from taichi_cloth.uploads import UploadBatch
 
 FAMILY_ORDER = ("stretch", "shear", "bend")

@@ -1,12 +1,15 @@
-"""The SIMD layout of a grid cloth's springs: a stencil, and packed copies of the state.
+"""Packed copies of a grid cloth's state, and the SIMD pass of its springs over them.
 
-A cloth on a regular grid (sheets and skirts from ``cloth.garment``) has springs that are the same
-few neighbour offsets at every particle, with rest lengths and stiffnesses that depend only on
-the row: a ``GridStencil`` (part of the constant model). ``PackedGrid`` holds positions (and
+A cloth on a regular grid has springs that are the same few neighbour offsets at every
+particle, with rest lengths and stiffnesses that depend only on the row: a ``GridStencil``
+(``physics.grid_stencil``, part of the constant model). ``PackedGrid`` holds positions (and
 velocities) packed in groups of ``SIMD_LANES`` columns, component by component, and evaluates
 every stencil slot for a whole group with vector arithmetic (``group_pass_function``): the same
 spring formula as the gather (``physics.forces``), each particle still summing its own springs in
-slot order (no atomics), but LLVM turns the lanes into AVX-512 instructions.
+slot order (no atomics), but LLVM turns the lanes into AVX-512 instructions. An effect whose
+force is a linear stencil on the grid (bending's constant Hessian) can act in the same pass
+(``Effect.allocate_lanes``: its coefficients per lane and slot in a packed table,
+``GridStencil.packed_table``) instead of being gathered particle by particle afterwards.
 
 The simulation chooses it (``packed_grid_for``) when the cloth is a grid of at least
 ``PACKED_PARTICLE_MINIMUM`` particles and the integrator takes one force evaluation per step;
@@ -16,106 +19,10 @@ otherwise springs are gathered through the CSR lists one particle at a time.
 import numpy as np
 import taichi as ti
 
+from taichi_cloth.physics.grid_stencil import GRID_TRIANGLES, SIMD_LANES
 
 PACKED_PARTICLE_MINIMUM = 1024  # below it the CSR gather is as fast and compiles in a blink
-SIMD_LANES = 16  # columns per packed group: one AVX-512 register of float32
-STENCIL_REACH = 2  # the farthest neighbour offset a stencil may have, rows or columns
-PACKED_BUFFERS = 2  # packed copies of a state: the one a substep reads, the one it writes
-
-
-@ti.data_oriented
-class GridStencil:
-    """Springs of a grid cloth as a stencil: slot s of a particle in row r links it to the
-    particle ``slot_offsets[s]`` = (Δrow, Δcolumn) away (columns wrap when ``periodic``; slots
-    ordered by Δcolumn, then Δrow), with
-    rest length ``rest_length[r, s]`` [m], stiffness ``stiffness[r, s]`` [N/m] and damping
-    ``damping[r, s]`` [N·s/m]. A slot whose neighbour is off the grid has no spring.
-
-    Positions are packed for the SIMD pass as ``rows × group_count`` groups of ``SIMD_LANES``
-    columns, component by component; packed column p holds grid column p − SIMD_LANES (the first
-    group and the tail are halo: copies of the wrapped columns when periodic, unused otherwise).
-    There are ``PACKED_BUFFERS`` such copies, so a substep can read one while it writes the next
-    (the Euler integrators carry the packed state from substep to substep).
-    """
-
-    def __init__(self, columns: int, rows: int, periodic: bool, slot_offsets: list,
-                 rest_length: np.ndarray, stiffness: np.ndarray, damping: np.ndarray, real):
-        self.columns, self.rows, self.periodic = columns, rows, periodic
-        self.slot_offsets = slot_offsets
-        self.slot_count = len(slot_offsets)
-        # (column step, first slot, slot count): slots sharing a column step are contiguous
-        column_steps = [offset[1] for offset in slot_offsets]
-        self.column_runs = [(step, column_steps.index(step), column_steps.count(step))
-                            for step in sorted(set(column_steps))]
-        self.group_count = (SIMD_LANES + columns + STENCIL_REACH - 1) // SIMD_LANES + 1
-        # every field first, then the copies (see Model.__init__)
-        self.slot_row_step = ti.field(ti.i32, self.slot_count)
-        self.rest_length = ti.field(real, (rows, self.slot_count))
-        self.stiffness = ti.field(real, (rows, self.slot_count))
-        self.damping = ti.field(real, (rows, self.slot_count))
-        self._tables = (rest_length, stiffness, damping)
-
-    def field_values(self) -> list:
-        """(field, array) of the tables, for the model's ``uploads``."""
-        numpy_real = np.float64 if self.rest_length.dtype == ti.f64 else np.float32
-        return [(self.slot_row_step, np.array([step for step, _ in self.slot_offsets], np.int32)),
-                *((table, np.ascontiguousarray(values, dtype=numpy_real)) for table, values in
-                  zip((self.rest_length, self.stiffness, self.damping), self._tables))]
-
-    def packed_fields(self, real) -> list:
-        """Three fields (x, y, z) of SIMD_LANES-vectors indexed [buffer, row, group], so a group
-        loads as one vector."""
-        return [ti.Vector.field(SIMD_LANES, real, (PACKED_BUFFERS, self.rows, self.group_count))
-                for _ in range(3)]
-
-
-def grid_stencil(garment, ends: np.ndarray, rest_length: np.ndarray,
-                 stiffness: np.ndarray, damping: np.ndarray, real) -> GridStencil | None:
-    """The garment's springs as a ``GridStencil``, or None when they are not one: every spring
-    must join grid neighbours at most ``STENCIL_REACH`` apart, every in-grid slot must hold
-    exactly one spring, and rest length, stiffness and damping may depend on the row only
-    (relative spread ≤ 1e-9; the table keeps the row's first value)."""
-    columns, rows = garment.columns, garment.rows
-    if columns * rows != garment.particle_count or not len(ends) or columns < 2 * STENCIL_REACH + 1:
-        return None
-    row, column = np.divmod(ends, columns)
-    row_step = row[:, 1] - row[:, 0]
-    column_step = column[:, 1] - column[:, 0]
-    if garment.periodic:
-        column_step = (column_step + columns // 2) % columns - columns // 2
-    if np.max(np.abs(row_step)) > STENCIL_REACH or np.max(np.abs(column_step)) > STENCIL_REACH:
-        return None
-    # Both ends see the spring: from i at offset (Δr, Δc), from j at (−Δr, −Δc).
-    owner = np.concatenate([ends[:, 0], ends[:, 1]])
-    steps = np.concatenate([np.stack([row_step, column_step], 1),
-                            np.stack([-row_step, -column_step], 1)])
-    width = 2 * STENCIL_REACH + 1
-    code = (steps[:, 1] + STENCIL_REACH) * width + steps[:, 0] + STENCIL_REACH
-    codes, slot = np.unique(code, return_inverse=True)  # slots by column step, then row step
-    slot_offsets = [(int(c) % width - STENCIL_REACH, int(c) // width - STENCIL_REACH)
-                    for c in codes]
-    owner_row = owner // columns
-    if len(np.unique(owner * len(slot_offsets) + slot)) != len(owner):
-        return None  # two springs in one slot
-    expected = 0
-    for d_row, d_column in slot_offsets:
-        in_rows = np.count_nonzero((np.arange(rows) + d_row >= 0) & (np.arange(rows) + d_row < rows))
-        in_columns = columns if garment.periodic else np.count_nonzero(
-            (np.arange(columns) + d_column >= 0) & (np.arange(columns) + d_column < columns))
-        expected += in_rows * in_columns
-    if expected != len(owner):
-        return None  # an in-grid slot without its spring
-    key = owner_row * len(slot_offsets) + slot
-    present, first, entry = np.unique(key, return_index=True, return_inverse=True)
-    tables = []
-    for values in (rest_length, stiffness, damping):
-        both = np.concatenate([values, values])
-        if not np.allclose(both, both[first][entry], rtol=1e-9, atol=0.0):
-            return None
-        table = np.zeros(rows * len(slot_offsets))
-        table[present] = both[first]
-        tables.append(table.reshape(rows, len(slot_offsets)))
-    return GridStencil(columns, rows, garment.periodic, slot_offsets, *tables, real)
+QUADS_AROUND = ((-1, -1), (-1, 0), (0, -1), (0, 0))  # a particle's quads: their top left from it
 
 
 @ti.func
@@ -129,19 +36,27 @@ def packed_lanes(packed_component: ti.template(), buffer, row, group,
                       for lane in ti.static(range(SIMD_LANES))])
 
 
-def group_pass_function(model, packed_x: list, packed_v: list, finish):
+def group_pass_function(packed, finish):
     """A ``ti.real_func`` (buffer, row, group, h) that computes the spring (and dashpot) force on
-    the SIMD_LANES particles of one packed group of packed copy ``buffer`` as three
-    SIMD_LANES-vectors (x, y, z) and hands them to ``finish(buffer, row, group, h, f_x, f_y,
-    f_z)``, a ``ti.func`` (``Forces`` stores them per particle, ``EulerStep`` steps the lanes
-    with step h [s]). Per slot, with d = x_j − x_i and 1/l = 1/√(d·d):
+    the SIMD_LANES particles of one group of ``packed`` (a ``PackedGrid``), packed copy
+    ``buffer``, plus the force of its ``lane_effects``, as three SIMD_LANES-vectors (x, y, z),
+    and hands them to ``finish(buffer, row, group, h, f_x, f_y, f_z)``, a ``ti.func``
+    (``PackedGrid`` stores them per particle, ``EulerStep`` steps the lanes with step h [s]).
+    Per spring slot, with d = x_j − x_i and 1/l = 1/√(d·d):
 
         f += [k·(1 − L/l) + c·((v_j − v_i)·d)/l²]·d,
 
     the module docstring's formula with n = d/l; a slot off the grid (or a zero-length spring)
-    adds nothing. Each lane sums its own slots in slot order (a gather). A real function is
-    compiled once per kernel however many substeps call it (inlined, its thousands of lane
-    operations made compiles take seconds per call)."""
+    adds nothing. Each lane sums its own slots in slot order (a gather), then the lane effects'
+    (``Effect.allocate_lanes``): a linear stencil's f −= C_s·[(x_j − x_i) + β·(v_j − v_i)] with
+    the effect's coefficient C_s of the lane and slot (0 where there is none) and its β, in this
+    loop, not in an inlined function of the effect's (a run-time loop in a function inlined into
+    a real function crashed Taichi 1.7.4); a face effect's share of each of the lane's six
+    faces. A real function is compiled once per kernel however many substeps call it (inlined,
+    its thousands of lane operations made compiles take seconds per call)."""
+    model = packed.model
+    packed_x, packed_v = packed.packed_x, packed.packed_v
+    stencil_effects, face_effects = packed.stencil_effects, packed.face_effects
     grid, real = model.grid, model.real
     has_dashpots = model.has_dashpots
     lane_index = ti.Vector(list(range(SIMD_LANES)))
@@ -176,6 +91,43 @@ def group_pass_function(model, packed_x: list, packed_v: list, finish):
                     magnitude = ti.select(present_column & (length_sq > 0), magnitude, 0.0)
                     for c in ti.static(range(3)):
                         force[c] += magnitude * d[c]
+        for effect in ti.static(stencil_effects):  # linear stencils (``Effect`` protocol)
+            for run in ti.static(effect.lane_column_runs):
+                column_step, first_slot, slot_count = ti.static(run)
+                for s in range(first_slot, first_slot + slot_count):
+                    neighbor_row = row + effect.lane_row_step[s]
+                    if 0 <= neighbor_row < grid.rows:
+                        coefficient = effect.lane_coefficient[row, group, s]
+                        for c in ti.static(range(3)):
+                            relative = packed_lanes(packed_x[c], buffer, neighbor_row, group,
+                                                    column_step) - x_i[c]
+                            if ti.static(has_dashpots and effect.lane_damping != 0.0):
+                                relative += real(effect.lane_damping) * (
+                                    packed_lanes(packed_v[c], buffer, neighbor_row, group,
+                                                 column_step)
+                                    - packed_lanes(packed_v[c], buffer, row, group, 0))
+                            force[c] -= coefficient * relative
+        for effect in ti.static(face_effects):  # a share of each of the lane's six faces
+            for quad_row, quad_column in ti.static(QUADS_AROUND):
+                top = row + quad_row
+                if 0 <= top and top + 1 < grid.rows:
+                    present = column >= 0  # every lane
+                    if ti.static(not grid.periodic):
+                        present = (column + quad_column >= 0) \
+                            & (column + quad_column + 1 < grid.columns)
+                    for corners in ti.static(GRID_TRIANGLES):
+                        if ti.static((-quad_row, -quad_column) in corners):
+                            corner_x = [[packed_lanes(packed_x[c], buffer, top + d_row, group,
+                                                      quad_column + d_column)
+                                         for c in ti.static(range(3))]
+                                        for d_row, d_column in ti.static(corners)]
+                            corner_v = [[packed_lanes(packed_v[c], buffer, top + d_row, group,
+                                                      quad_column + d_column)
+                                         for c in ti.static(range(3))]
+                                        for d_row, d_column in ti.static(corners)]
+                            share = effect.lane_face_force(corner_x, corner_v)
+                            for c in ti.static(range(3)):
+                                force[c] += ti.select(present, share[c], 0.0)
         finish(buffer, row, group, h, force[0], force[1], force[2])
 
     return group_pass
@@ -186,20 +138,31 @@ class PackedGrid:
     """Packed copies of a grid cloth's state and the SIMD spring pass over them.
 
     ``packed_x``/``packed_v``: three fields (x, y, z) of SIMD_LANES-vectors indexed [buffer, row,
-    group] (``GridStencil.packed_fields``); ``grid_spring_force`` [N]: the spring pass's result per
-    [row, column]; ``packed_inv_mass`` [1/kg] per lane (0 for pinned and halo lanes) and
-    ``group_has_pin`` per group, for the integrators that step in the lanes.
+    group] (``GridStencil.packed_fields``); ``packed_force`` [N]: the pass's result, three
+    fields of SIMD_LANES-vectors indexed [row, group]; ``packed_inv_mass`` [1/kg] per lane (0
+    for pinned and halo lanes) and ``group_has_pin`` per group, for the integrators that step in
+    the lanes; ``lane_effects``: the effects whose forces the pass adds (``stencil_effects``,
+    ``face_effects``: ``group_pass_function``).
     """
 
-    def __init__(self, model):
+    def __init__(self, model, effects=()):
+        """effects: the scene's effects; those with a force that can act in the SIMD pass
+        (``Effect.allocate_lanes``) become its ``lane_effects``."""
         self.model = model
         self.grid = model.grid
         grid = model.grid
+        forms = [(e, e.allocate_lanes(grid)) for e in effects if e.has_force]
+        self.stencil_effects = [e for e, form in forms if form == "stencil"]
+        self.face_effects = [e for e, form in forms if form == "faces"]
+        self.lane_effects = self.stencil_effects + self.face_effects
+        # velocities packed too: for the dashpots, and for the faces' air
+        self.packs_velocity = model.has_dashpots or bool(self.face_effects)
         self.packed_x = grid.packed_fields(model.real)
         self.packed_v = grid.packed_fields(model.real)
-        # [row, column] up to the last filled group's last lane (the pass stores whole groups)
-        self.grid_spring_force = ti.Vector.field(
-            3, model.real, (grid.rows, SIMD_LANES * grid.group_count))
+        # whole vectors, as the pass computes them: stored lane by lane into [row, column]
+        # (x, y, z side by side) LLVM left the whole pass unvectorised (~3x slower)
+        self.packed_force = [ti.Vector.field(SIMD_LANES, model.real, (grid.rows, grid.group_count))
+                             for _ in range(3)]
         columns = grid.columns
         # (first, last + 1) of the packed groups that hold grid columns
         self.filled_groups = (1, (2 * SIMD_LANES + columns - 1) // SIMD_LANES)
@@ -213,22 +176,25 @@ class PackedGrid:
         self.packed_inv_mass = ti.Vector.field(SIMD_LANES, model.real,
                                                (grid.rows, grid.group_count))
         self.group_has_pin = ti.field(ti.i32, (grid.rows, grid.group_count))
-        self.group_springs = group_pass_function(model, self.packed_x, self.packed_v,
-                                                 self._store_spring_force)
+        self.group_springs = group_pass_function(self, self._store_spring_force)
         self._upload_constants()
 
     @ti.func
     def spring_pass(self, x, v):
-        """Every particle's spring force into ``grid_spring_force``: pack (x, v) into packed copy
-        0, then the SIMD stencil pass."""
-        self.pack(x, v, 0, self.model.has_dashpots)
+        """Every particle's spring force (and its lane effects') into ``packed_force``: pack
+        (x, v) into packed copy 0, then the SIMD stencil pass."""
+        self.pack(x, v, 0, self.packs_velocity)
         for row, group in ti.ndrange(self.grid.rows, ti.static(self.filled_groups)):
             self.group_springs(0, row, group, 0.0)
 
     @ti.func
     def spring_force(self, i_p):
-        """Particle i_p's spring force [N] from the last ``spring_pass``."""
-        return self.grid_spring_force[i_p // self.grid.columns, i_p % self.grid.columns]
+        """Particle i_p's spring force (and its lane effects') [N] from the last
+        ``spring_pass``."""
+        column = i_p % self.grid.columns
+        group, lane = column // SIMD_LANES + 1, column % SIMD_LANES
+        return ti.Vector([self.packed_force[c][i_p // self.grid.columns, group][lane]
+                          for c in ti.static(range(3))])
 
     @ti.func
     def group_particles(self, row, group):
@@ -239,12 +205,9 @@ class PackedGrid:
 
     @ti.func
     def _store_spring_force(self, buffer, row, group, h, f_x, f_y, f_z):
-        """A group's spring forces into ``grid_spring_force`` [N], lane by lane (halo lanes
-        too: no branch, which a function inlined into a real function must not have in
-        Taichi 1.7.4, it crashes the compiler)."""
-        for lane in ti.static(range(SIMD_LANES)):
-            self.grid_spring_force[row, (group - 1) * SIMD_LANES + lane] = ti.Vector(
-                [f_x[lane], f_y[lane], f_z[lane]])
+        """A group's spring forces into ``packed_force`` [N], whole vectors (halo lanes too)."""
+        for c, f_c in ti.static(enumerate((f_x, f_y, f_z))):
+            self.packed_force[c][row, group] = f_c
 
     def _upload_constants(self) -> None:
         """The lanes' inverse masses and pins, for the model's ``uploads``."""
@@ -350,9 +313,10 @@ class PackedGrid:
                                                         i_p % grid.columns)
 
 
-def packed_grid_for(model, wanted: bool) -> PackedGrid | None:
-    """A ``PackedGrid`` when ``wanted`` (an integrator with one force evaluation per step) and the
-    cloth is a grid of at least ``PACKED_PARTICLE_MINIMUM`` particles; None otherwise."""
+def packed_grid_for(model, wanted: bool, effects=()) -> PackedGrid | None:
+    """A ``PackedGrid`` (with ``effects`` that can act in its lanes) when ``wanted`` (an
+    integrator with one force evaluation per step) and the cloth is a grid of at least
+    ``PACKED_PARTICLE_MINIMUM`` particles; None otherwise."""
     if wanted and model.grid is not None and model.particle_count >= PACKED_PARTICLE_MINIMUM:
-        return PackedGrid(model)
+        return PackedGrid(model, effects)
     return None

@@ -87,7 +87,8 @@ class Simulation:
         for effect in self.effects:
             effect.upload()
         self.forces = Forces(self.model, self.effects,
-                             packed_grid_for(self.model, integrator_class.packs_springs))
+                             packed_grid_for(self.model, integrator_class.packs_springs,
+                                             self.effects))
         self.integrator = make_integrator(scene.simulation.integrator, self.forces, self.control,
                                           post_step_of(self.effects), scene.simulation)
         # scratch for ``total_forces``, allocated before the states send the model's uploads

@@ -23,7 +23,8 @@ A substep takes one of three paths, chosen at compile time:
   from substep to substep and packed from the state only once per launch (``begin_launch``), or
   again after every projection pass (``post_step`` moves particles behind the update's back).
   One loop per substep instead of three (pack, springs, update) saves two thread-pool hand-offs;
-- lanes: when every force effect is a uniform acceleration (gravity) and there is no projection,
+- lanes: when every force effect is a uniform acceleration (gravity) or acts in the packed pass
+  (bending: ``Effect.allocate_lanes``) and there is no projection,
   the update too runs in the SIMD lanes (``lane_step_function``): the packed state is stepped as
   whole vectors, pins are set afterwards, and x, v are unpacked once at the end of the launch
   (``end_launch``). docs/performance.md has what each path costs.
@@ -79,21 +80,21 @@ class EulerStep(Integrator):
         super().__init__(forces, control, post_step)
         self.packed = forces.packed
         self.has_packed = forces.has_packed
-        # The whole step in SIMD lanes: a packed grid whose force effects are uniform
-        # accelerations, and no projection (which moves particles in the unpacked state).
+        # The whole step in SIMD lanes: a packed grid whose gathered force effects are uniform
+        # accelerations (the others act in its pass), and no projection (which moves particles
+        # in the unpacked state).
         self.steps_in_lanes = self.has_packed \
             and forces.uniform_acceleration is not None and not self.has_post_step
         self.substeps_write_states = not self.steps_in_lanes
         if self.steps_in_lanes:
             self.group_step = group_pass_function(
-                self.model, self.packed.packed_x, self.packed.packed_v,
-                lane_step_function(forces, self.uses_new_velocity))
+                self.packed, lane_step_function(forces, self.uses_new_velocity))
 
     @ti.func
     def begin_launch(self, state):
         if ti.static(self.has_packed):
             self.packed.pack(state.x, state.v, 0,
-                             ti.static(self.steps_in_lanes or self.model.has_dashpots))
+                             ti.static(self.steps_in_lanes or self.packed.packs_velocity))
 
     @ti.func
     def end_launch(self, state, buffer):
@@ -143,7 +144,7 @@ class EulerStep(Integrator):
         grid = self.model.grid
         self.forces.prepare_effects(state_in.x, state_in.v, t)
         if ti.static(self.has_post_step):
-            packed.pack(state_in.x, state_in.v, buffer, self.model.has_dashpots)
+            packed.pack(state_in.x, state_in.v, buffer, packed.packs_velocity)
         for row, group in ti.ndrange(grid.rows, ti.static(packed.filled_groups)):
             packed.group_springs(buffer, row, group, 0.0)
             first, end = packed.group_particles(row, group)
@@ -152,9 +153,9 @@ class EulerStep(Integrator):
             if ti.static(not self.has_post_step):  # else the next substep packs after it
                 if ti.static(not grid.periodic) or group <= packed.last_own_group:
                     packed.pack_group(state_out.x, state_out.v, 1 - buffer, row, group,
-                                      self.model.has_dashpots)
+                                      packed.packs_velocity)
         if ti.static(grid.periodic and not self.has_post_step):  # wrapped columns: other groups
-            packed.pack_halo(state_out.x, state_out.v, 1 - buffer, self.model.has_dashpots)
+            packed.pack_halo(state_out.x, state_out.v, 1 - buffer, packed.packs_velocity)
 
     @ti.func
     def _update(self, state_in, state_out, i_p, t, dt):
