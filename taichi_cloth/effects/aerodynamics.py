@@ -43,19 +43,3 @@ def face_damping(model, x, i_t, air_velocity):
     twice_area = twice_area_normal.norm()
     normal = twice_area_normal / ti.max(twice_area, 1e-30)
     return normal, (1.0 / 9.0) * twice_area * ti.abs(air_velocity.dot(normal))
-
-
-@ti.func
-def lane_face_pressure(corner_x: ti.template(), air_velocity: ti.template(), real: ti.template()):
-    """``face_pressure`` of SIMD lanes of faces: corner_x, three corners' positions, and
-    air_velocity, each three vectors of lanes (x, y, z). With N = (x1 − x0) × (x2 − x0) (twice
-    the area along the normal), ½·A·(u·n)|u·n|·n = ½·(u·N)|u·N|·N/(N·N); 0 for a degenerate
-    face. Without the ½ρC_d factor."""
-    first = [corner_x[1][c] - corner_x[0][c] for c in ti.static(range(3))]
-    second = [corner_x[2][c] - corner_x[0][c] for c in ti.static(range(3))]
-    normal = [first[(c + 1) % 3] * second[(c + 2) % 3] - first[(c + 2) % 3] * second[(c + 1) % 3]
-              for c in ti.static(range(3))]
-    along = air_velocity[0] * normal[0] + air_velocity[1] * normal[1] + air_velocity[2] * normal[2]
-    squared = normal[0] * normal[0] + normal[1] * normal[1] + normal[2] * normal[2]
-    scale = ti.select(squared > 0, real(0.5) * along * ti.abs(along) / squared, 0.0)
-    return [scale * normal[c] for c in ti.static(range(3))]

@@ -29,15 +29,12 @@ Genesis' ``force_fields.py``). What an effect declares:
   ``dt = "auto"`` ``rest_stiffness_product(u)`` and ``stiffness_row_sums(n)`` (host NumPy).
 - ``uniform_acceleration``: (a_x, a_y, a_z) [m/s²] when its force is m·a for every free particle
   (gravity), which lets a grid cloth step in SIMD lanes; None otherwise.
-- ``allocate_lanes(grid)``: on a packed grid cloth (``physics.packed_grid``) an effect may act
-  inside the SIMD spring pass instead of being gathered per particle; it returns how (None, by
-  default: it does not). ``"stencil"``: its force is a linear stencil on the grid,
-  f_i = −Σ_j C_ij·[(x_j − x_i) + β·(v_j − v_i)] (bending), and it sets ``lane_column_runs``,
-  ``lane_row_step`` (a field per slot), ``lane_coefficient`` (C per lane and slot:
-  ``GridStencil.lane_slots``, ``packed_table``) and ``lane_damping`` (β [s]). ``"faces"``: its
-  force is a sum over the particle's triangles, the grid's own (``GridStencil.has_grid_triangles``),
-  of a share that does not depend on their winding (drag), given by ``lane_face_force(corner_x,
-  corner_v)`` for a face's three corners' positions and velocities, each three SIMD vectors.
+- ``allocate_lanes(grid)``: on a packed grid cloth (``physics.packed_grid``) an effect whose
+  force is a linear stencil on the grid, f_i = −Σ_j C_ij·[(x_j − x_i) + β·(v_j − v_i)] (bending),
+  may act inside the SIMD spring pass instead of being gathered per particle: it says whether
+  it does (False by default) and sets ``lane_column_runs``, ``lane_row_step`` (a field per
+  slot), ``lane_coefficient`` (C per lane and slot: ``GridStencil.lane_slots``,
+  ``packed_table``) and ``lane_damping`` (β [s]).
 - ``stability_modes()``: the (k̂ [1/s²], ζ) of each stiff mode it adds, for ``dt = "auto"``.
 - ``potential_energy(x, mass)`` [J], ``penetration_depths(points)`` [m] and ``frame_metrics(x)`` (more
   per-frame values for ``stats.json``, by name): its metrics.
@@ -127,11 +124,11 @@ class Effect:
         """Per-evaluation work at positions x, velocities v and time t [s], before the
         particle loops: nothing here."""
 
-    def allocate_lanes(self, grid) -> str | None:
+    def allocate_lanes(self, grid) -> bool:
         """Allocate what acting inside the SIMD pass of the grid cloth ``grid`` (a
-        ``GridStencil``) needs, and say how the effect does (module docstring): it does not
+        ``GridStencil``) needs, and say whether the effect does (module docstring): it does not
         here."""
-        return None
+        return False
 
     def stability_modes(self) -> list[tuple[float, float]]:
         """(k̂ [1/s²], ζ) of the stiff modes this effect adds: none here."""

@@ -129,14 +129,14 @@ class Bending(Effect):
                                 (self.row_split, self.host_row_split),
                                 (self.diagonal, self.host_diagonal.astype(real))])
 
-    def allocate_lanes(self, grid) -> str | None:
+    def allocate_lanes(self, grid) -> bool:
         """H's rows as a linear stencil of the grid cloth ``grid`` (``GridStencil.lane_slots``):
         H_ij per lane and slot (``lane_coefficient``, 0 where a lane has no such neighbour),
-        each slot's row step, and β for the dashpot term (f_i = −(H·x)_i − β·(H·v)_i): a
-        "stencil"; None when a row reaches beyond the stencil."""
+        each slot's row step, and β for the dashpot term (f_i = −(H·x)_i − β·(H·v)_i); False
+        when a row reaches beyond the stencil."""
         slots = grid.lane_slots(self.host_row_owner, self.host_row_neighbor)
         if slots is None:
-            return None
+            return False
         slot_offsets, self.lane_column_runs, slot = slots
         table = grid.packed_table(self.host_row_owner, slot, self.host_row_coefficient,
                                   len(slot_offsets))
@@ -147,7 +147,7 @@ class Bending(Effect):
         self.model.uploads.add([
             (self.lane_row_step, np.array([step for step, _ in slot_offsets], np.int32)),
             (self.lane_coefficient, table.astype(self.model.numpy_real))])
-        return "stencil"
+        return True
 
     @ti.func
     def _row_product(self, u, i_p):

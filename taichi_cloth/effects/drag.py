@@ -2,16 +2,13 @@
 
 Each face's pressure is computed once per force evaluation (``prepare``: its normal, area and
 mean velocity), and each particle gathers a third of its faces' (in the fixed order of
-``model.particle_triangle``), instead of every particle recomputing its six faces. On a packed
-grid cloth it acts in the SIMD pass instead ("faces", ``Effect.allocate_lanes``): each lane
-computes its six faces from the packed state, sixteen particles at a time."""
+``model.particle_triangle``), instead of every particle recomputing its six faces."""
 
 from dataclasses import dataclass
 
 import taichi as ti
 
-from taichi_cloth.effects.aerodynamics import (face_damping, face_pressure, face_velocity,
-                                               lane_face_pressure)
+from taichi_cloth.effects.aerodynamics import face_damping, face_pressure, face_velocity
 from taichi_cloth.effects.base import Effect, EffectContext
 from taichi_cloth.settings import setting
 
@@ -45,19 +42,6 @@ class Drag(Effect):
         model = self.model
         for i_t in range(model.triangle_count):
             self.face_force[i_t] = face_pressure(model, x, i_t, -face_velocity(model, v, i_t))
-
-    def allocate_lanes(self, grid) -> str | None:
-        """"faces" on a cloth triangulated as the grid (``GridStencil.has_grid_triangles``)."""
-        return "faces" if grid.has_grid_triangles(self.model.garment.triangles) else None
-
-    @ti.func
-    def lane_face_force(self, corner_x: ti.template(), corner_v: ti.template()):
-        """One corner's share of still air's pressure on SIMD lanes of faces [N]: a third of
-        ½ρC_d times ``lane_face_pressure`` with the air at −(v0 + v1 + v2)/3 relative."""
-        air = [-(corner_v[0][c] + corner_v[1][c] + corner_v[2][c]) / 3.0
-               for c in ti.static(range(3))]
-        pressure = lane_face_pressure(corner_x, air, self.model.real)
-        return [self.model.real(self.factor) / 3.0 * pressure[c] for c in ti.static(range(3))]
 
     @ti.func
     def force(self, model, x, v, i_p, t):

@@ -11,13 +11,9 @@ constant Hessian) lays its coefficients out per lane and slot the same way
 import numpy as np
 import taichi as ti
 
-from taichi_cloth.cloth.topology import grid_triangles
-
 SIMD_LANES = 16  # columns per packed group: one AVX-512 register of float32
 STENCIL_REACH = 2  # the farthest neighbour offset a stencil may have, rows or columns
 PACKED_BUFFERS = 2  # packed copies of a state: the one a substep reads, the one it writes
-# the grid's two triangles per quad as corners (Δrow, Δcolumn) from the quad's top left
-GRID_TRIANGLES = (((0, 0), (1, 0), (1, 1)), ((0, 0), (1, 1), (0, 1)))
 
 
 @ti.data_oriented
@@ -69,15 +65,6 @@ class GridStencil:
         if len(np.unique(owner.astype(np.int64) * len(slot_offsets) + slot)) != len(owner):
             return None
         return slot_offsets, column_runs(slot_offsets), slot
-
-    def has_grid_triangles(self, triangles: np.ndarray) -> bool:
-        """Whether ``triangles`` (T, 3) are the grid's own, in any order and winding: two per
-        quad, (top left, bottom left, bottom right) and (top left, bottom right, top right)
-        (``cloth.topology.grid_triangles``, which the SIMD pass's faces follow,
-        ``GRID_TRIANGLES``)."""
-        own = grid_triangles(self.columns, self.rows, self.periodic)
-        return len(triangles) == len(own) and np.array_equal(
-            np.unique(np.sort(triangles, axis=1), axis=0), np.unique(np.sort(own, axis=1), axis=0))
 
     def packed_table(self, owner: np.ndarray, slot: np.ndarray, values: np.ndarray,
                      slot_count: int) -> np.ndarray:

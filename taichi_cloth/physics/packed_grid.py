@@ -19,10 +19,9 @@ otherwise springs are gathered through the CSR lists one particle at a time.
 import numpy as np
 import taichi as ti
 
-from taichi_cloth.physics.grid_stencil import GRID_TRIANGLES, SIMD_LANES
+from taichi_cloth.physics.grid_stencil import SIMD_LANES
 
 PACKED_PARTICLE_MINIMUM = 1024  # below it the CSR gather is as fast and compiles in a blink
-QUADS_AROUND = ((-1, -1), (-1, 0), (0, -1), (0, 0))  # a particle's quads: their top left from it
 
 
 @ti.func
@@ -48,15 +47,15 @@ def group_pass_function(packed, finish):
 
     the module docstring's formula with n = d/l; a slot off the grid (or a zero-length spring)
     adds nothing. Each lane sums its own slots in slot order (a gather), then the lane effects'
-    (``Effect.allocate_lanes``): a linear stencil's f −= C_s·[(x_j − x_i) + β·(v_j − v_i)] with
+    (``Effect.allocate_lanes``), linear stencils: f −= C_s·[(x_j − x_i) + β·(v_j − v_i)] with
     the effect's coefficient C_s of the lane and slot (0 where there is none) and its β, in this
     loop, not in an inlined function of the effect's (a run-time loop in a function inlined into
-    a real function crashed Taichi 1.7.4); a face effect's share of each of the lane's six
-    faces. A real function is compiled once per kernel however many substeps call it (inlined,
-    its thousands of lane operations made compiles take seconds per call)."""
+    a real function crashed Taichi 1.7.4). A real function is compiled once per kernel however
+    many substeps call it (inlined, its thousands of lane operations made compiles take seconds
+    per call)."""
     model = packed.model
     packed_x, packed_v = packed.packed_x, packed.packed_v
-    stencil_effects, face_effects = packed.stencil_effects, packed.face_effects
+    lane_effects = packed.lane_effects
     grid, real = model.grid, model.real
     has_dashpots = model.has_dashpots
     lane_index = ti.Vector(list(range(SIMD_LANES)))
@@ -65,6 +64,7 @@ def group_pass_function(packed, finish):
     def group_pass(buffer: ti.i32, row: ti.i32, group: ti.i32, h: real):
         column = (group - 1) * SIMD_LANES + lane_index
         x_i = [packed_lanes(packed_x[c], buffer, row, group, 0) for c in ti.static(range(3))]
+        v_i = [packed_lanes(packed_v[c], buffer, row, group, 0) for c in ti.static(range(3))]
         force = [ti.Vector.zero(real, SIMD_LANES) for _ in ti.static(range(3))]
         for run in ti.static(grid.column_runs):
             column_step, first_slot, slot_count = ti.static(run)
@@ -85,13 +85,12 @@ def group_pass_function(packed, finish):
                         along = ti.Vector.zero(real, SIMD_LANES)
                         for c in ti.static(range(3)):
                             along += (packed_lanes(packed_v[c], buffer, neighbor_row, group,
-                                                   column_step)
-                                      - packed_lanes(packed_v[c], buffer, row, group, 0)) * d[c]
+                                                   column_step) - v_i[c]) * d[c]
                         magnitude += grid.damping[row, s] * along * inv_length * inv_length
                     magnitude = ti.select(present_column & (length_sq > 0), magnitude, 0.0)
                     for c in ti.static(range(3)):
                         force[c] += magnitude * d[c]
-        for effect in ti.static(stencil_effects):  # linear stencils (``Effect`` protocol)
+        for effect in ti.static(lane_effects):  # linear stencils (``Effect`` protocol)
             for run in ti.static(effect.lane_column_runs):
                 column_step, first_slot, slot_count = ti.static(run)
                 for s in range(first_slot, first_slot + slot_count):
@@ -104,30 +103,8 @@ def group_pass_function(packed, finish):
                             if ti.static(has_dashpots and effect.lane_damping != 0.0):
                                 relative += real(effect.lane_damping) * (
                                     packed_lanes(packed_v[c], buffer, neighbor_row, group,
-                                                 column_step)
-                                    - packed_lanes(packed_v[c], buffer, row, group, 0))
+                                                 column_step) - v_i[c])
                             force[c] -= coefficient * relative
-        for effect in ti.static(face_effects):  # a share of each of the lane's six faces
-            for quad_row, quad_column in ti.static(QUADS_AROUND):
-                top = row + quad_row
-                if 0 <= top and top + 1 < grid.rows:
-                    present = column >= 0  # every lane
-                    if ti.static(not grid.periodic):
-                        present = (column + quad_column >= 0) \
-                            & (column + quad_column + 1 < grid.columns)
-                    for corners in ti.static(GRID_TRIANGLES):
-                        if ti.static((-quad_row, -quad_column) in corners):
-                            corner_x = [[packed_lanes(packed_x[c], buffer, top + d_row, group,
-                                                      quad_column + d_column)
-                                         for c in ti.static(range(3))]
-                                        for d_row, d_column in ti.static(corners)]
-                            corner_v = [[packed_lanes(packed_v[c], buffer, top + d_row, group,
-                                                      quad_column + d_column)
-                                         for c in ti.static(range(3))]
-                                        for d_row, d_column in ti.static(corners)]
-                            share = effect.lane_face_force(corner_x, corner_v)
-                            for c in ti.static(range(3)):
-                                force[c] += ti.select(present, share[c], 0.0)
         finish(buffer, row, group, h, force[0], force[1], force[2])
 
     return group_pass
@@ -141,8 +118,8 @@ class PackedGrid:
     group] (``GridStencil.packed_fields``); ``packed_force`` [N]: the pass's result, three
     fields of SIMD_LANES-vectors indexed [row, group]; ``packed_inv_mass`` [1/kg] per lane (0
     for pinned and halo lanes) and ``group_has_pin`` per group, for the integrators that step in
-    the lanes; ``lane_effects``: the effects whose forces the pass adds (``stencil_effects``,
-    ``face_effects``: ``group_pass_function``).
+    the lanes; ``lane_effects``: the effects whose forces the pass adds
+    (``group_pass_function``).
     """
 
     def __init__(self, model, effects=()):
@@ -151,12 +128,7 @@ class PackedGrid:
         self.model = model
         self.grid = model.grid
         grid = model.grid
-        forms = [(e, e.allocate_lanes(grid)) for e in effects if e.has_force]
-        self.stencil_effects = [e for e, form in forms if form == "stencil"]
-        self.face_effects = [e for e, form in forms if form == "faces"]
-        self.lane_effects = self.stencil_effects + self.face_effects
-        # velocities packed too: for the dashpots, and for the faces' air
-        self.packs_velocity = model.has_dashpots or bool(self.face_effects)
+        self.lane_effects = [e for e in effects if e.has_force and e.allocate_lanes(grid)]
         self.packed_x = grid.packed_fields(model.real)
         self.packed_v = grid.packed_fields(model.real)
         # whole vectors, as the pass computes them: stored lane by lane into [row, column]
@@ -183,7 +155,7 @@ class PackedGrid:
     def spring_pass(self, x, v):
         """Every particle's spring force (and its lane effects') into ``packed_force``: pack
         (x, v) into packed copy 0, then the SIMD stencil pass."""
-        self.pack(x, v, 0, self.packs_velocity)
+        self.pack(x, v, 0, self.model.has_dashpots)
         for row, group in ti.ndrange(self.grid.rows, ti.static(self.filled_groups)):
             self.group_springs(0, row, group, 0.0)
 

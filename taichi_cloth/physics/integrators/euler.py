@@ -94,7 +94,7 @@ class EulerStep(Integrator):
     def begin_launch(self, state):
         if ti.static(self.has_packed):
             self.packed.pack(state.x, state.v, 0,
-                             ti.static(self.steps_in_lanes or self.packed.packs_velocity))
+                             ti.static(self.steps_in_lanes or self.model.has_dashpots))
 
     @ti.func
     def end_launch(self, state, buffer):
@@ -144,7 +144,7 @@ class EulerStep(Integrator):
         grid = self.model.grid
         self.forces.prepare_effects(state_in.x, state_in.v, t)
         if ti.static(self.has_post_step):
-            packed.pack(state_in.x, state_in.v, buffer, packed.packs_velocity)
+            packed.pack(state_in.x, state_in.v, buffer, self.model.has_dashpots)
         for row, group in ti.ndrange(grid.rows, ti.static(packed.filled_groups)):
             packed.group_springs(buffer, row, group, 0.0)
             first, end = packed.group_particles(row, group)
@@ -153,9 +153,9 @@ class EulerStep(Integrator):
             if ti.static(not self.has_post_step):  # else the next substep packs after it
                 if ti.static(not grid.periodic) or group <= packed.last_own_group:
                     packed.pack_group(state_out.x, state_out.v, 1 - buffer, row, group,
-                                      packed.packs_velocity)
+                                      self.model.has_dashpots)
         if ti.static(grid.periodic and not self.has_post_step):  # wrapped columns: other groups
-            packed.pack_halo(state_out.x, state_out.v, 1 - buffer, packed.packs_velocity)
+            packed.pack_halo(state_out.x, state_out.v, 1 - buffer, self.model.has_dashpots)
 
     @ti.func
     def _update(self, state_in, state_out, i_p, t, dt):
