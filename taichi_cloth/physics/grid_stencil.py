@@ -55,11 +55,12 @@ class GridStencil:
     def lane_slots(self, owner: np.ndarray, other: np.ndarray):
         """The slots of entries owner → other (particle indices) as a stencil like the springs':
         (slot offsets (Δrow, Δcolumn) ordered by Δcolumn, then Δrow; their ``column_runs``;
-        each entry's slot), or None when an entry reaches farther than ``STENCIL_REACH`` or two
-        entries of a particle share a slot. For an effect that acts in the SIMD pass
-        (``Effect.allocate_lanes``)."""
+        each entry's slot), or None when there are no entries, when an entry reaches farther than
+        ``STENCIL_REACH`` or when two entries of a particle share a slot. For an effect that acts
+        in the SIMD pass (``Effect.allocate_lanes``)."""
         row_step, column_step = grid_steps(self.columns, self.periodic, owner, other)
-        if len(owner) and max(np.abs(row_step).max(), np.abs(column_step).max()) > STENCIL_REACH:
+        if not len(owner) \
+                or max(np.abs(row_step).max(), np.abs(column_step).max()) > STENCIL_REACH:
             return None
         slot_offsets, slot = stencil_slots(row_step, column_step)
         if len(np.unique(owner.astype(np.int64) * len(slot_offsets) + slot)) != len(owner):
