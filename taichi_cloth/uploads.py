@@ -93,7 +93,9 @@ def upload(pairs) -> None:
 
 class UploadBatch:
     """Copies gathered until ``send``, then made in one ``upload`` (one kernel launch, after
-    every field of the batch's owner is allocated); once sent, a copy added is made at once."""
+    every field of the batch's owner is allocated); once sent, a copy added is made at once. A
+    field written outside the batch before it is sent (a track set by hand) is overwritten by
+    the batch's copy at ``send``: send first (``tests/systems.assemble`` does)."""
 
     def __init__(self):
         self._pairs = []
