@@ -6,9 +6,9 @@ import numpy as np
 
 
 def scatter_sum(index: np.ndarray, values: np.ndarray, count: int) -> np.ndarray:
-    """Σ of the rows of ``values`` (K, 3) by ``index`` (K,) into (count, 3): ``np.add.at``'s
-    result in the same order, one ``np.bincount`` per column (~10× faster, for the host-side
-    estimates run at start-up)."""
+    """Σ of the rows of ``values`` (K, C) by ``index`` (K,) into (count, C): the sums of
+    ``np.add.at`` (to rounding: bincount adds in float64), one ``np.bincount`` per column (~10×
+    faster, for the host-side estimates run at start-up)."""
     return np.stack([np.bincount(index, values[:, c], minlength=count)
                      for c in range(values.shape[1])], axis=1)
 
