@@ -11,20 +11,37 @@ import taichi as ti
 
 
 @ti.func
+def plate_pressure(edge_a: ti.template(), edge_b: ti.template(), air_velocity: ti.template()):
+    """The flat plate's pressure on the triangle spanned by edges ``edge_a`` and ``edge_b`` [m]
+    from air moving at ``air_velocity`` relative to it [m/s], each given as its three components
+    (x, y, z): the components of A·(u·n)|u·n|·n [m⁴/s²] (without the ½ρC_d factor; 0 for a
+    degenerate triangle). Written on components, so that one formula serves a Taichi vector's
+    components and the SIMD lanes of ``physics.packed_grid`` (SIMD_LANES-vectors, one triangle
+    per lane)."""
+    a, b, u = edge_a, edge_b, air_velocity
+    twice_area_normal = (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2],
+                         a[0] * b[1] - a[1] * b[0])
+    twice_area = ti.sqrt(twice_area_normal[0] * twice_area_normal[0]
+                         + twice_area_normal[1] * twice_area_normal[1]
+                         + twice_area_normal[2] * twice_area_normal[2])
+    inverse = 1.0 / ti.max(twice_area, 1e-30)
+    n = (twice_area_normal[0] * inverse, twice_area_normal[1] * inverse,
+         twice_area_normal[2] * inverse)
+    normal_speed = u[0] * n[0] + u[1] * n[1] + u[2] * n[2]
+    magnitude = 0.5 * twice_area * normal_speed * ti.abs(normal_speed)
+    return magnitude * n[0], magnitude * n[1], magnitude * n[2]
+
+
+@ti.func
 def face_pressure(model, x, i_t, air_velocity):
     """Aerodynamic force on triangle i_t from air moving at ``air_velocity`` relative to it [N]:
-    f = ½·ρ·C_d·A·(u·n)|u·n|·n (a flat plate's normal pressure; u the relative air velocity,
-    n the unit normal, A the area). Returned without the ½ρC_d factor, which the caller applies.
-    The sign of n cancels, so winding does not matter."""
+    f = ½·ρ·C_d·A·(u·n)|u·n|·n (``plate_pressure``; u the relative air velocity, n the unit
+    normal, A the area). Returned without the ½ρC_d factor, which the caller applies. The sign of
+    n cancels, so winding does not matter."""
     tri = model.triangles[i_t]
-    twice_area_normal = (x[tri[1]] - x[tri[0]]).cross(x[tri[2]] - x[tri[0]])
-    twice_area = twice_area_normal.norm()
-    result = ti.Vector.zero(model.real, 3)
-    if twice_area > 0:
-        normal = twice_area_normal / twice_area
-        normal_speed = air_velocity.dot(normal)
-        result = 0.5 * twice_area * normal_speed * ti.abs(normal_speed) * normal
-    return result
+    edge_a, edge_b = x[tri[1]] - x[tri[0]], x[tri[2]] - x[tri[0]]
+    f_x, f_y, f_z = plate_pressure(edge_a, edge_b, air_velocity)
+    return ti.Vector([f_x, f_y, f_z])
 
 
 @ti.func

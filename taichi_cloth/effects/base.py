@@ -35,6 +35,11 @@ Genesis' ``force_fields.py``). What an effect declares:
   it does (False by default) and sets ``lane_column_runs``, ``lane_row_step`` (a field per
   slot), ``lane_coefficient`` (C per lane and slot: ``GridStencil.lane_slots``,
   ``packed_table``) and ``lane_damping`` (β [s]).
+- ``lane_faces``: True when its force is the air pressure on each face of the cloth
+  (``aerodynamics.plate_pressure``, a third to each corner) with the air velocity relative to a
+  face given by ``face_air(face_velocity)`` (on components) and the factor ``face_factor``
+  (½·ρ·C_d [kg/m³]): on a packed grid cloth the SIMD pass then computes each face once, in
+  lanes, and each particle reads back its six (drag).
 - ``stability_modes()``: the (k̂ [1/s²], ζ) of each stiff mode it adds, for ``dt = "auto"``.
 - ``potential_energy(x, mass)`` [J], ``penetration_depths(points)`` [m] and ``frame_metrics(x)`` (more
   per-frame values for ``stats.json``, by name): its metrics.
@@ -85,6 +90,7 @@ class Effect:
     needs_body = False  # the scene must have a [body] section
     arranges_own_passes = False  # ``prepare``'s loops stay as it configures them
     uniform_acceleration = None
+    lane_faces = False
     post_step = None
 
     def __init__(self, settings, context: EffectContext):

@@ -2,7 +2,8 @@
 
 Each face's pressure is computed once per force evaluation (``prepare``: its normal, area and
 mean velocity), and each particle gathers a third of its faces' (in the fixed order of
-``model.particle_triangle``), instead of every particle recomputing its six faces."""
+``model.particle_triangle``), instead of every particle recomputing its six faces. On a packed
+grid cloth the SIMD pass does the same in lanes (``lane_faces``, ``physics.packed_grid``)."""
 
 from dataclasses import dataclass
 
@@ -27,10 +28,11 @@ class Drag(Effect):
     name = "drag"
     Settings = DragSettings
     has_jacobian = True  # drag is stiff on light cloth: the implicit solver treats it so
+    lane_faces = True  # a grid cloth's SIMD pass can compute its faces (``face_air``)
 
     def __init__(self, settings: DragSettings, context: EffectContext):
         super().__init__(settings, context)
-        self.factor = 0.5 * settings.air_density * settings.coefficient
+        self.face_factor = 0.5 * settings.air_density * settings.coefficient  # ½ρC_d [kg/m³]
         model = context.model
         self.model = model
         # each face's pressure (without ½ρC_d) [N] at the last ``prepare``
@@ -44,12 +46,17 @@ class Drag(Effect):
             self.face_force[i_t] = face_pressure(model, x, i_t, -face_velocity(model, v, i_t))
 
     @ti.func
+    def face_air(self, face_velocity: ti.template()):
+        """Still air relative to a face moving at ``face_velocity`` (components) [m/s]."""
+        return -face_velocity[0], -face_velocity[1], -face_velocity[2]
+
+    @ti.func
     def force(self, model, x, v, i_p, t):
         """A third of the pressure of each of the particle's faces (after ``prepare``)."""
         f = ti.Vector.zero(model.real, 3)
         for k in range(model.particle_triangle_start[i_p], model.particle_triangle_start[i_p + 1]):
             f += self.face_force[model.particle_triangle[k]]
-        return model.real(self.factor) / 3.0 * f
+        return model.real(self.face_factor) / 3.0 * f
 
     @ti.func
     def local_jacobian(self, model, x, v, i_p, t, definite: ti.template()):
@@ -61,4 +68,4 @@ class Drag(Effect):
             i_t = model.particle_triangle[k]
             normal, weight = face_damping(model, x, i_t, -face_velocity(model, v, i_t))
             damping -= weight * normal.outer_product(normal)
-        return ti.Matrix.zero(model.real, 3, 3), model.real(self.factor) * damping
+        return ti.Matrix.zero(model.real, 3, 3), model.real(self.face_factor) * damping

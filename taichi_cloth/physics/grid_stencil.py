@@ -37,7 +37,9 @@ class GridStencil:
         self.slot_offsets = slot_offsets
         self.slot_count = len(slot_offsets)
         self.column_runs = column_runs(slot_offsets)
-        self.group_count = (SIMD_LANES + columns + STENCIL_REACH - 1) // SIMD_LANES + 1
+        # a halo group before the columns' groups and one after: a group's vector reads reach
+        # into its neighbours (``packed_grid.packed_lanes``, up to STENCIL_REACH ≤ SIMD_LANES)
+        self.group_count = (columns + SIMD_LANES - 1) // SIMD_LANES + 2
         # every field first, then the copies (see Model.__init__)
         self.slot_row_step = ti.field(ti.i32, self.slot_count)
         self.rest_length = ti.field(real, (rows, self.slot_count))
@@ -79,10 +81,10 @@ class GridStencil:
             table.reshape(self.rows, self.group_count, SIMD_LANES, slot_count)
             .transpose(0, 1, 3, 2))
 
-    def packed_fields(self, real) -> list:
-        """Three fields (x, y, z) of SIMD_LANES-vectors indexed [buffer, row, group], so a group
+    def packed_fields(self, real, copies: int = PACKED_BUFFERS) -> list:
+        """Three fields (x, y, z) of SIMD_LANES-vectors indexed [copy, row, group], so a group
         loads as one vector."""
-        return [ti.Vector.field(SIMD_LANES, real, (PACKED_BUFFERS, self.rows, self.group_count))
+        return [ti.Vector.field(SIMD_LANES, real, (copies, self.rows, self.group_count))
                 for _ in range(3)]
 
 

@@ -19,26 +19,36 @@ otherwise springs are gathered through the CSR lists one particle at a time.
 import numpy as np
 import taichi as ti
 
+from taichi_cloth.cloth.topology import grid_triangles
+from taichi_cloth.effects.aerodynamics import plate_pressure
 from taichi_cloth.physics.grid_stencil import SIMD_LANES
 
 PACKED_PARTICLE_MINIMUM = 1024  # below it the CSR gather is as fast and compiles in a blink
 
 
+def lane_sources(column_step: int) -> tuple:
+    """Where the lanes of a group shifted by ``column_step`` columns come from: (the group
+    offsets read, each lane's (index among them, lane))."""
+    sources = [divmod(lane + column_step, SIMD_LANES) for lane in range(SIMD_LANES)]
+    offsets = sorted({offset for offset, _ in sources})
+    return offsets, [(offsets.index(offset), lane) for offset, lane in sources]
+
+
 @ti.func
 def packed_lanes(packed_component: ti.template(), buffer, row, group,
                  column_step: ti.template()):
-    """The SIMD_LANES values of packed columns group·SIMD_LANES + lane + column_step."""
-    groups = (packed_component[buffer, row, group - 1], packed_component[buffer, row, group],
-              packed_component[buffer, row, group + 1])
-    return ti.Vector([groups[(lane + column_step + SIMD_LANES) // SIMD_LANES]
-                      [(lane + column_step) % SIMD_LANES]
+    """The SIMD_LANES values of packed columns group·SIMD_LANES + lane + column_step (reading
+    only the groups they lie in)."""
+    offsets, picks = ti.static(lane_sources(column_step))
+    groups = [packed_component[buffer, row, group + offset] for offset in ti.static(offsets)]
+    return ti.Vector([groups[ti.static(picks[lane][0])][ti.static(picks[lane][1])]
                       for lane in ti.static(range(SIMD_LANES))])
 
 
 def group_pass_function(packed, finish):
     """A ``ti.real_func`` (buffer, row, group, h) that computes the spring (and dashpot) force on
     the SIMD_LANES particles of one group of ``packed`` (a ``PackedGrid``), packed copy
-    ``buffer``, plus the force of its ``lane_effects``, as three SIMD_LANES-vectors (x, y, z),
+    ``buffer``, plus the force of its lane effects, as three SIMD_LANES-vectors (x, y, z),
     and hands them to ``finish(buffer, row, group, h, f_x, f_y, f_z)``, a ``ti.func``
     (``PackedGrid`` stores them per particle, ``EulerStep`` steps the lanes with step h [s]).
     Per spring slot, with d = x_j − x_i and 1/l = 1/√(d·d):
@@ -46,16 +56,17 @@ def group_pass_function(packed, finish):
         f += [k·(1 − L/l) + c·((v_j − v_i)·d)/l²]·d,
 
     the module docstring's formula with n = d/l; a slot off the grid (or a zero-length spring)
-    adds nothing. Each lane sums its own slots in slot order (a gather), then the lane effects'
+    adds nothing. Each lane sums its own slots in slot order (a gather), then the stencil effects'
     (``Effect.allocate_lanes``), linear stencils: f −= C_s·[(x_j − x_i) + β·(v_j − v_i)] with
     the effect's coefficient C_s of the lane and slot (0 where there is none) and its β, in this
     loop, not in an inlined function of the effect's (a run-time loop in a function inlined into
-    a real function crashed Taichi 1.7.4). A real function is compiled once per kernel however
-    many substeps call it (inlined, its thousands of lane operations made compiles take seconds
-    per call)."""
+    a real function crashed Taichi 1.7.4); then the face effects' thirds of the particle's six
+    faces, read from ``face_force`` (``PackedGrid.face_pass``, run before). A real function is
+    compiled once per kernel however many substeps call it (inlined, its thousands of lane
+    operations made compiles take seconds per call)."""
     model = packed.model
     packed_x, packed_v = packed.packed_x, packed.packed_v
-    lane_effects = packed.lane_effects
+    stencil_effects, face_force = packed.stencil_effects, packed.face_force
     grid, real = model.grid, model.real
     has_dashpots = model.has_dashpots
     lane_index = ti.Vector(list(range(SIMD_LANES)))
@@ -90,7 +101,7 @@ def group_pass_function(packed, finish):
                     magnitude = ti.select(present_column & (length_sq > 0), magnitude, 0.0)
                     for c in ti.static(range(3)):
                         force[c] += magnitude * d[c]
-        for effect in ti.static(lane_effects):  # linear stencils (``Effect`` protocol)
+        for effect in ti.static(stencil_effects):  # linear stencils (``Effect`` protocol)
             for run in ti.static(effect.lane_column_runs):
                 column_step, first_slot, slot_count = ti.static(run)
                 for s in range(first_slot, first_slot + slot_count):
@@ -105,9 +116,57 @@ def group_pass_function(packed, finish):
                                     packed_lanes(packed_v[c], buffer, neighbor_row, group,
                                                  column_step) - v_i[c])
                             force[c] -= coefficient * relative
+        for faces in ti.static(face_force):  # the thirds of the particle's six faces
+            for c in ti.static(range(3)):
+                # quad (row, column): both faces; (row, column − 1): the second; (row − 1,
+                # column): the first; (row − 1, column − 1): both (``PackedGrid.face_pass``)
+                total = faces[0][c][0, row, group] + faces[1][c][0, row, group] \
+                    + packed_lanes(faces[1][c], 0, row, group, -1)
+                if row > 0:
+                    total += packed_lanes(faces[0][c], 0, row - 1, group, 0) \
+                        + packed_lanes(faces[0][c], 0, row - 1, group, -1) \
+                        + packed_lanes(faces[1][c], 0, row - 1, group, -1)
+                force[c] += total
         finish(buffer, row, group, h, force[0], force[1], force[2])
 
     return group_pass
+
+
+def quad_faces_function(packed):
+    """A ``ti.real_func`` (buffer, row, group) that computes, in lanes, the pressure of each of
+    ``packed``'s face effects on the two triangles of the quads of rows row, row + 1 and the
+    group's columns c, c + 1 (TL, BL, BR and TL, BR, TR, as ``cloth.topology.grid_triangles``)
+    from packed copy ``buffer``: its third into the effect's ``face_force`` [N] (0 for a quad off
+    an open grid). Real, so that a launch of many substeps compiles it once."""
+    grid, real = packed.grid, packed.model.real
+    packed_x, packed_v = packed.packed_x, packed.packed_v
+    face_effects, face_force = packed.face_effects, packed.face_force
+    corners = ((0, 0), (1, 0), (1, 1), (0, 1))  # TL, BL, BR, TR: (Δrow, Δcolumn)
+    lane_index = ti.Vector(list(range(SIMD_LANES)))
+
+    @ti.real_func
+    def quad_faces(buffer: ti.i32, row: ti.i32, group: ti.i32):
+        x = [[packed_lanes(packed_x[c], buffer, row + corners[k][0], group, corners[k][1])
+              for c in ti.static(range(3))] for k in ti.static(range(4))]
+        v = [[packed_lanes(packed_v[c], buffer, row + corners[k][0], group, corners[k][1])
+              for c in ti.static(range(3))] for k in ti.static(range(4))]
+        column = (group - 1) * SIMD_LANES + lane_index
+        present = column >= -SIMD_LANES  # every lane
+        if ti.static(not grid.periodic):
+            present = (column >= 0) & (column < grid.columns - 1)
+        for e, effect in ti.static(enumerate(face_effects)):
+            for kind in ti.static(range(2)):
+                a, b, c = ti.static(((0, 1, 2), (0, 2, 3))[kind])
+                face_velocity = [(v[a][k] + v[b][k] + v[c][k]) * real(1.0 / 3.0)
+                                 for k in ti.static(range(3))]
+                air = effect.face_air(face_velocity)
+                pressure = plate_pressure([x[b][k] - x[a][k] for k in ti.static(range(3))],
+                                          [x[c][k] - x[a][k] for k in ti.static(range(3))], air)
+                for k in ti.static(range(3)):
+                    face_force[e][kind][k][0, row, group] = ti.select(
+                        present, real(effect.face_factor / 3.0) * pressure[k], 0.0)
+
+    return quad_faces
 
 
 @ti.data_oriented
@@ -118,19 +177,30 @@ class PackedGrid:
     group] (``GridStencil.packed_fields``); ``packed_force`` [N]: the pass's result, three
     fields of SIMD_LANES-vectors indexed [row, group]; ``packed_inv_mass`` [1/kg] per lane (0
     for pinned and halo lanes) and ``group_has_pin`` per group, for the integrators that step in
-    the lanes; ``lane_effects``: the effects whose forces the pass adds
-    (``group_pass_function``).
+    the lanes; ``lane_effects``: the effects whose forces the pass adds (``group_pass_function``):
+    ``stencil_effects`` (``Effect.allocate_lanes``) and ``face_effects`` (``Effect.lane_faces``,
+    each with its ``face_force``: ``face_pass``).
     """
 
     def __init__(self, model, effects=()):
         """effects: the scene's effects; those with a force that can act in the SIMD pass
-        (``Effect.allocate_lanes``) become its ``lane_effects``."""
+        become its ``lane_effects``."""
         self.model = model
         self.grid = model.grid
         grid = model.grid
-        self.lane_effects = [e for e in effects if e.has_force and e.allocate_lanes(grid)]
+        self.stencil_effects = [e for e in effects if e.has_force and e.allocate_lanes(grid)]
+        self.face_effects = [e for e in effects if e.has_force and e.lane_faces] \
+            if self._triangles_are_the_grids() else []
+        self.lane_effects = self.stencil_effects + self.face_effects
+        # the pass reads velocities for dashpots and faces
+        self.needs_velocity = model.has_dashpots or bool(self.face_effects)
         self.packed_x = grid.packed_fields(model.real)
         self.packed_v = grid.packed_fields(model.real)
+        # per face effect, its pressure's third on the (TL, BL, BR) and (TL, BR, TR) triangles
+        # of each quad [N], (x, y, z) fields of SIMD_LANES-vectors indexed [0, row, group] (as a
+        # packed copy, so ``packed_lanes`` reads them shifted); never written in the last row
+        self.face_force = [[grid.packed_fields(model.real, copies=1) for _ in range(2)]
+                           for _ in self.face_effects]
         # whole vectors, as the pass computes them: stored lane by lane into [row, column]
         # (x, y, z side by side) LLVM left the whole pass unvectorised (~3x slower)
         self.packed_force = [ti.Vector.field(SIMD_LANES, model.real, (grid.rows, grid.group_count))
@@ -149,15 +219,40 @@ class PackedGrid:
                                                (grid.rows, grid.group_count))
         self.group_has_pin = ti.field(ti.i32, (grid.rows, grid.group_count))
         self.group_springs = group_pass_function(self, self._store_spring_force)
+        if self.face_effects:
+            self.quad_faces = quad_faces_function(self)
         self._upload_constants()
 
     @ti.func
     def spring_pass(self, x, v):
         """Every particle's spring force (and its lane effects') into ``packed_force``: pack
         (x, v) into packed copy 0, then the SIMD stencil pass."""
-        self.pack(x, v, 0, self.model.has_dashpots)
+        self.pack(x, v, 0, self.needs_velocity)
+        self.face_pass(0)
         for row, group in ti.ndrange(self.grid.rows, ti.static(self.filled_groups)):
             self.group_springs(0, row, group, 0.0)
+
+    def _triangles_are_the_grids(self) -> bool:
+        """Whether the cloth's triangles are the grid's (``cloth.topology.grid_triangles``: each
+        quad (r, c) split into (r, c), (r + 1, c), (r + 1, c + 1) and (r, c), (r + 1, c + 1),
+        (r, c + 1)), as ``face_pass`` assumes."""
+        grid = self.grid
+        expected = grid_triangles(grid.columns, grid.rows, grid.periodic)
+        triangles = self.model.garment.triangles
+        return triangles.shape == expected.shape and np.array_equal(
+            np.unique(np.sort(triangles, axis=1), axis=0),
+            np.unique(np.sort(expected, axis=1), axis=0))
+
+    @ti.func
+    def face_pass(self, buffer):
+        """Each face effect's pressure (``aerodynamics.plate_pressure``, air relative to the face
+        from ``Effect.face_air``) on the two triangles of every quad, from packed copy
+        ``buffer``, in lanes: its third, times the effect's ``face_factor``, into
+        ``face_force`` [N]; 0 for a quad off the grid (the halo's, on an open grid)."""
+        grid = self.grid
+        if ti.static(self.face_effects):
+            for row, group in ti.ndrange(grid.rows - 1, (0, ti.static(self.filled_groups[1]))):
+                self.quad_faces(buffer, row, group)
 
     @ti.func
     def spring_force(self, i_p):

@@ -16,15 +16,16 @@ A substep takes one of three paths, chosen at compile time:
 
 - gather: ``Forces.prepare`` then one loop over the particles, each gathering its springs through
   the CSR lists (any cloth);
-- packed: on a packed grid (``forces.packed``, ``physics.packed_grid``) one loop over the packed
-  groups: the SIMD spring pass of a group, the update of its particles (any effects), then their
+- packed: on a packed grid (``forces.packed``, ``physics.packed_grid``) the faces of its face
+  effects (``PackedGrid.face_pass``), then one loop over the packed groups: the SIMD spring
+  pass of a group, the update of its particles (any effects), then their
   new state packed into the other packed copy (on a periodic grid, the groups holding wrapped
   columns are packed after the loop, when every column is done). The packed state is carried
   from substep to substep and packed from the state only once per launch (``begin_launch``), or
   again after every projection pass (``post_step`` moves particles behind the update's back).
   One loop per substep instead of three (pack, springs, update) saves two thread-pool hand-offs;
 - lanes: when every force effect is a uniform acceleration (gravity) or acts in the packed pass
-  (bending: ``Effect.allocate_lanes``) and there is no projection,
+  (bending: ``Effect.allocate_lanes``; drag: ``Effect.lane_faces``) and there is no projection,
   the update too runs in the SIMD lanes (``lane_step_function``): the packed state is stepped as
   whole vectors, pins are set afterwards, and x, v are unpacked once at the end of the launch
   (``end_launch``). docs/performance.md has what each path costs.
@@ -94,7 +95,7 @@ class EulerStep(Integrator):
     def begin_launch(self, state):
         if ti.static(self.has_packed):
             self.packed.pack(state.x, state.v, 0,
-                             ti.static(self.steps_in_lanes or self.model.has_dashpots))
+                             ti.static(self.steps_in_lanes or self.packed.needs_velocity))
 
     @ti.func
     def end_launch(self, state, buffer):
@@ -126,6 +127,7 @@ class EulerStep(Integrator):
         model, packed = self.model, self.packed
         grid = model.grid
         h = ti.cast(dt, model.real)
+        packed.face_pass(buffer)
         for row, group in ti.ndrange(grid.rows, ti.static(packed.filled_groups)):
             self.group_step(buffer, row, group, h)
             if packed.group_has_pin[row, group]:
@@ -144,7 +146,8 @@ class EulerStep(Integrator):
         grid = self.model.grid
         self.forces.prepare_effects(state_in.x, state_in.v, t)
         if ti.static(self.has_post_step):
-            packed.pack(state_in.x, state_in.v, buffer, self.model.has_dashpots)
+            packed.pack(state_in.x, state_in.v, buffer, packed.needs_velocity)
+        packed.face_pass(buffer)
         for row, group in ti.ndrange(grid.rows, ti.static(packed.filled_groups)):
             packed.group_springs(buffer, row, group, 0.0)
             first, end = packed.group_particles(row, group)
@@ -153,9 +156,9 @@ class EulerStep(Integrator):
             if ti.static(not self.has_post_step):  # else the next substep packs after it
                 if ti.static(not grid.periodic) or group <= packed.last_own_group:
                     packed.pack_group(state_out.x, state_out.v, 1 - buffer, row, group,
-                                      self.model.has_dashpots)
+                                      packed.needs_velocity)
         if ti.static(grid.periodic and not self.has_post_step):  # wrapped columns: other groups
-            packed.pack_halo(state_out.x, state_out.v, 1 - buffer, self.model.has_dashpots)
+            packed.pack_halo(state_out.x, state_out.v, 1 - buffer, packed.needs_velocity)
 
     @ti.func
     def _update(self, state_in, state_out, i_p, t, dt):
