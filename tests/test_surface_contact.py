@@ -18,11 +18,14 @@ from taichi_cloth.physics.model import Model
 
 STIFFNESS, MARGIN, RADIUS = 1e4, 0.01, 0.03  # 1/s², m, m: a bar thinner than the spacing
 BAR = np.array([[-0.6, 1.3, 0.0], [0.6, 1.3, 0.0]])
+FAR = np.array([[-0.6, 9.0, 0.0], [0.6, 9.0, 0.0]])  # a capsule that touches nothing
 
 
 class SheetOnThinBar:
     """A 5 × 4 sheet (f64, about 12 cm spacing) crossed by a bar of radius 3 cm between its
-    particle rows; frictionless and undamped, so the contact force is conservative."""
+    particle rows; frictionless and undamped, so the contact force is conservative. The bar is
+    the second of three capsules, the others far away: the near-masks hold its bit alone, and
+    the contact passes over the first capsule's bit to find it."""
 
     def __init__(self):
         scene = load_scene("sheet", ("cloth.resolution=[5, 4]", "cloth.pin='none'"))
@@ -30,8 +33,8 @@ class SheetOnThinBar:
         self.model = Model(self.garment, "f64", None)
         physics = assemble(self.model, [(CapsuleContact, CollisionSettings(
             stiffness=STIFFNESS, damping=0.0, friction=0.0, thickness=MARGIN))],
-            capsule_radius=[RADIUS])
-        physics.control.capsule_track.hold(BAR)
+            capsule_radius=[RADIUS] * 3)
+        physics.control.capsule_track.hold(np.concatenate([FAR, BAR, FAR]))
         self.forces, self.contact = physics.forces, physics.effects[0]
         self.springs_only = assemble(self.model).forces
         n = self.model.particle_count
