@@ -259,13 +259,12 @@ class CandidatePairs(PairRecords):
             bucket = grid.bucket(cell)
             for k in range(grid.bucket_start[bucket], grid.bucket_start[bucket + 1]):
                 t = grid.entry_box[k]
-                # nested tests: a kernel's ``and`` evaluates both sides
-                if (grid.entry_cell[k] == cell).all():
-                    if (grid.lower[t] <= x[i_p]).all() and (x[i_p] <= grid.upper[t]).all():
-                        corners = self.corners[t]
-                        if (corners != i_p).all():
-                            self._consider(x, i_p, t, ti.Vector([i_p, corners[0], corners[1],
-                                                                 corners[2]]), VERTEX_TRIANGLE)
+                corners = self.corners[t]
+                # one test of all, evaluated whole (as the edges' below)
+                if (grid.entry_cell[k] == cell).all() and (grid.lower[t] <= x[i_p]).all() \
+                        and (x[i_p] <= grid.upper[t]).all() and (corners != i_p).all():
+                    self._consider(x, i_p, t, ti.Vector([i_p, corners[0], corners[1],
+                                                         corners[2]]), VERTEX_TRIANGLE)
         self._keep_crossed(i_p)
 
     @ti.func
@@ -288,15 +287,16 @@ class CandidatePairs(PairRecords):
                     other = grid.entry_box[k]
                     if other <= e:
                         break
-                    # nested tests: a kernel's ``and`` evaluates both sides
-                    if (grid.entry_cell[k] == cell).all():
-                        if grid.overlap(e, other) \
-                                and (grid.first_common_cell(e, other) == cell).all():
-                            other_ends = self.ends[other]
-                            if other_ends[0] != ends[0] and other_ends[0] != ends[1] \
-                                    and other_ends[1] != ends[0] and other_ends[1] != ends[1]:
-                                self._consider(x, owner, other, ti.Vector(
-                                    [ends[0], ends[1], other_ends[0], other_ends[1]]), EDGE_EDGE)
+                    # one test of all, evaluated whole (a kernel's ``and`` evaluates both
+                    # sides): true for ~6 % of the entries, so its branch is well predicted,
+                    # where nested tests true for 80 % and 19 % were not
+                    other_ends = self.ends[other]
+                    if (grid.entry_cell[k] == cell).all() and grid.overlap(e, other) \
+                            and (grid.first_common_cell(e, other) == cell).all() \
+                            and other_ends[0] != ends[0] and other_ends[0] != ends[1] \
+                            and other_ends[1] != ends[0] and other_ends[1] != ends[1]:
+                        self._consider(x, owner, other, ti.Vector(
+                            [ends[0], ends[1], other_ends[0], other_ends[1]]), EDGE_EDGE)
         self._keep_crossed(owner)
 
     @ti.func
