@@ -17,8 +17,9 @@ METRIC_REPEATS = 20  # timings of the self-intersection count on a scene's last 
 
 @ti.data_oriented
 class PassTimer:
-    """Kernels that run one pass of a simulation ``count`` times: the spring pass (grid
-    cloth: pack + SIMD stencil; otherwise the CSR gather), the contact pass (pose the
+    """Kernels that run one pass of a simulation ``count`` times: the spring pass (packed grid
+    cloth: pack + SIMD stencil, with the effects that act in it, bending and drag; otherwise
+    the CSR gather of springs and dashpots), the contact pass (pose the
     capsules, then every particle's contact force) and the self-collision pass (its
     ``prepare``, then every particle's gather, then its post step, the side records: with its
     candidate lists kept, as most evaluations find them, or rebuilt every pass, as after half
