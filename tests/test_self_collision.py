@@ -24,15 +24,22 @@ MASS = np.array([0.1, 0.2, 0.3, 0.4, 0.5, 0.6])  # kg
 SETTINGS = SelfCollisionSettings(thickness=THICKNESS, stiffness=K_HAT, damping=0.0, friction=0.0)
 
 
+def triangle_mesh(positions: np.ndarray, triangles: list, mass: np.ndarray) -> Garment:
+    """A free mesh of ``triangles`` with springs of zero stiffness on their edges (the mesh
+    needs them; the tests no force but self-collision's)."""
+    triangles = np.array(triangles, np.int32)
+    edges = np.unique(np.sort(np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]],
+                                              triangles[:, [0, 2]]]), axis=1), axis=0)
+    count = len(positions)
+    return Garment(positions=positions, uvs=np.zeros((count, 2)), triangles=triangles,
+                   springs={"stretch": edges}, spring_stiffness={"stretch": np.zeros(len(edges))},
+                   mass=mass, pinned=np.zeros(count, bool), columns=count, rows=1,
+                   periodic=False, damping_time=0.0)
+
+
 def two_triangles(positions: np.ndarray) -> Garment:
     """Triangles (0, 1, 2) and (3, 4, 5), unconnected, with the masses of ``MASS``."""
-    edges = np.array([[0, 1], [1, 2], [0, 2], [3, 4], [4, 5], [3, 5]], np.int32)
-    rest = np.linalg.norm(positions[edges[:, 1]] - positions[edges[:, 0]], axis=1)
-    return Garment(positions=positions, uvs=np.zeros((6, 2)),
-                   triangles=np.array([[0, 1, 2], [3, 4, 5]], np.int32),
-                   springs={"stretch": edges}, spring_stiffness={"stretch": 0.0 * rest},
-                   mass=MASS, pinned=np.zeros(6, bool), columns=6, rows=1, periodic=False,
-                   damping_time=0.0)
+    return triangle_mesh(positions, [[0, 1, 2], [3, 4, 5]], MASS)
 
 
 @functools.cache
@@ -226,33 +233,67 @@ def test_putting_a_pair_back_stretches_no_spring_past_its_length_before():
     np.testing.assert_allclose(MASS @ (x - after), 0.0, atol=1e-12)
 
 
-def test_a_crossing_that_no_triangles_witness_is_not_undone_into_meeting_ones():
-    """Triangle 3–4–5 goes from above triangle 0–1–2 to wholly below it in one step, vertex 3
-    through the face, 4 and 5 past its sides (the way a hem goes round another layer's border):
-    the record says the pair crossed, but no triangles meet. Putting vertex 3 back above would
-    make its edges pierce the face, so the post step leaves the positions as they are, counts a
-    refusal, and the pair takes the side it is on: the penalty then pushes vertex 3 down."""
-    forces, state, out, effect = two_triangle_physics()
-    before = np.array([[-1.0, 0, -1], [1, 0, -1], [0, 0, 1],
-                       [0.1, 0.004, 0.2], [1.4, 0.004, 0.2], [0.1, 0.004, 1.5]])
-    after = before.copy()
-    after[3:, 1] = -0.002
-    after[4, 0], after[5, 2] = 0.4, 0.5
-    self_collision_force(before)
+def refused_step(physics, before: np.ndarray, after: np.ndarray):
+    """A step from ``before`` (a fresh start, its records taken there) to ``after`` whose pair
+    may not be put back: checks that the post step leaves ``after`` as it is, counting one
+    refusal and no pair put back; returns (the metrics at the end, the forces there at rest).
+    physics: (forces, state, output field, the effect)."""
+    forces, state, out, effect = physics
+    effect.forget_history()
+    state.v.fill(0.0)
+    state.x.from_numpy(before)
+    forces.evaluate(state.x, state.v, 0.0, out)
     finish_step(effect, state)
     counts = effect.frame_metrics(before)
     state.x.from_numpy(after)
-    state.v.fill(0.0)
     finish_step(effect, state)
     x = state.x.to_numpy()
     np.testing.assert_array_equal(x, after)
     metrics = effect.frame_metrics(x)
     assert metrics["self_collision_refusals"] == counts["self_collision_refusals"] + 1
     assert metrics["self_collision_separations"] == counts["self_collision_separations"]
-    assert metrics["self_collision_crossed"] == 0
     forces.evaluate(state.x, state.v, 0.0, out)
-    assert out.to_numpy()[3, 1] == pytest.approx(-MASS[3] * K_HAT * (THICKNESS - 0.002),
-                                                 rel=1e-9)
+    return metrics, out.to_numpy()
+
+
+def test_a_crossing_that_no_triangles_witness_is_not_undone_into_meeting_ones():
+    """Triangle 3–4–5 goes from above triangle 0–1–2 to wholly below it in one step, vertex 3
+    through the face, 4 and 5 past its sides (the way a hem goes round another layer's border):
+    the record says the pair crossed, but no triangles meet. Putting vertex 3 back above would
+    make its edges pierce the face, so the post step leaves the positions as they are, counts a
+    refusal, and the pair takes the side it is on: the penalty then pushes vertex 3 down."""
+    before = np.array([[-1.0, 0, -1], [1, 0, -1], [0, 0, 1],
+                       [0.1, 0.004, 0.2], [1.4, 0.004, 0.2], [0.1, 0.004, 1.5]])
+    after = before.copy()
+    after[3:, 1] = -0.002
+    after[4, 0], after[5, 2] = 0.4, 0.5
+    metrics, force = refused_step(two_triangle_physics(), before, after)
+    assert metrics["self_collision_crossed"] == 0
+    assert force[3, 1] == pytest.approx(-MASS[3] * K_HAT * (THICKNESS - 0.002), rel=1e-9)
+
+
+def test_a_crossing_inside_a_tangle_keeps_its_record_when_putting_it_back_would_tangle_more():
+    """Vertex 3 goes 6 mm down through triangle 0–1–2 in one step, its two triangles (3, 4, 5)
+    and (3, 5, 6) standing upright across that face: the first passes through it already
+    (vertex 4 above, 5 below), the second hangs below it. Putting vertex 3 back above would take
+    the second through the face too (more edges through faces around the pair than before, and
+    some before: the record is witnessed), so the post step leaves the positions as they are,
+    counts a refusal and keeps the record: the pair stays crossed, and the penalty pushes
+    vertex 3 up, back to its side, by m·k̂·(thickness + 2 mm) (a record given way would push it
+    down by m·k̂·(thickness − 2 mm))."""
+    mass = np.append(MASS, 0.7)
+    start = np.array([[-1.0, 0, -1], [1, 0, -1], [0, 0, 1], [0, 0.004, -0.3],
+                      [0.05, 0.04, -0.3], [0.05, -0.04, -0.3], [-0.05, -0.04, -0.3]])
+    end = start.copy()
+    end[3, 1] = -0.002
+    model = Model(triangle_mesh(start, [[0, 1, 2], [3, 4, 5], [3, 5, 6]], mass), "f64")
+    physics = assemble(model, [(SelfCollision, SETTINGS)])
+    metrics, force = refused_step((physics.forces, model.state(),
+                                   ti.Vector.field(3, ti.f64, len(mass)), physics.effects[0]),
+                                  start, end)
+    assert metrics["self_collision_pairs"] == 1  # vertex 3 and the face, nothing else
+    assert metrics["self_collision_crossed"] == 1
+    assert force[3, 1] == pytest.approx(mass[3] * K_HAT * (THICKNESS + 0.002), rel=1e-9)
 
 
 @pytest.mark.parametrize("mend", ["next step", "repair"])
