@@ -160,7 +160,7 @@ class CapsuleContact(Effect):
             if ti.static(self.masked):
                 self._refresh_masks(x)
             for i_s in range(self.sample_count):
-                mask = self._sample_mask(i_s)
+                mask = self._mask(i_s, True)
                 force = ti.Vector.zero(self.model.real, 3)
                 if mask != 0:
                     position, velocity = self._sample_state(x, v, i_s)
@@ -293,26 +293,21 @@ class CapsuleContact(Effect):
         return f
 
     @ti.func
-    def _mask(self, i_p):
-        """Particle i_p's near-mask (every capsule without surface samples, which need no
-        pass, or with more capsules than ``MASK_BITS``)."""
+    def _mask(self, i, sample: ti.template()):
+        """The near-mask of particle i (of sample i, with ``sample``); every capsule where
+        there are no masks (no surface samples, or more than ``MASK_BITS`` capsules)."""
         mask = -1
         if ti.static(self.masked):
-            mask = self.particle_near[i_p]
-        return mask
-
-    @ti.func
-    def _sample_mask(self, i_s):
-        """Sample i_s's near-mask (every capsule with more than ``MASK_BITS``)."""
-        mask = -1
-        if ti.static(self.masked):
-            mask = self.sample_near[i_s]
+            if ti.static(sample):
+                mask = self.sample_near[i]
+            else:
+                mask = self.particle_near[i]
         return mask
 
     @ti.func
     def force(self, model, x, v, i_p, t):
         """The particle's own contact and, with ``surface``, w_a·F_s of each of its samples."""
-        f = self._contact_force(model.particle_mass[i_p], x[i_p], v[i_p], self._mask(i_p))
+        f = self._contact_force(model.particle_mass[i_p], x[i_p], v[i_p], self._mask(i_p, False))
         if ti.static(self.surface):
             for k in range(self.particle_sample_start[i_p], self.particle_sample_start[i_p + 1]):
                 i_s = self.particle_sample[k]
@@ -325,13 +320,13 @@ class CapsuleContact(Effect):
         ``surface``, w_a² times its samples' blocks (the couplings between a sample's particles
         left out: module docstring)."""
         stiffness_block, damping_block = self._contact_blocks(
-            model.particle_mass[i_p], x[i_p], v[i_p], self._mask(i_p), definite)
+            model.particle_mass[i_p], x[i_p], v[i_p], self._mask(i_p, False), definite)
         if ti.static(self.surface):
             for k in range(self.particle_sample_start[i_p], self.particle_sample_start[i_p + 1]):
                 i_s = self.particle_sample[k]
                 weight = self.particle_sample_weight[k]
                 position, velocity = self._sample_state(x, v, i_s)
-                mask = self._sample_mask(i_s)
+                mask = self._mask(i_s, True)
                 sample_stiffness, sample_damping = self._contact_blocks(
                     self.sample_mass[i_s], position, velocity, mask, definite)
                 stiffness_block += weight * weight * sample_stiffness

@@ -43,12 +43,17 @@ class Drag(Effect):
         """Every face's pressure of still air, once."""
         model = self.model
         for i_t in range(model.triangle_count):
-            self.face_force[i_t] = face_pressure(model, x, i_t, -face_velocity(model, v, i_t))
+            self.face_force[i_t] = face_pressure(model, x, i_t, self._air(model, v, i_t))
 
     @ti.func
     def face_air(self, face_velocity: ti.template()):
         """Still air relative to a face moving at ``face_velocity`` (components) [m/s]."""
         return -face_velocity[0], -face_velocity[1], -face_velocity[2]
+
+    @ti.func
+    def _air(self, model, v, i_t):
+        """``face_air`` of triangle i_t as a vector [m/s]."""
+        return ti.Vector(self.face_air(face_velocity(model, v, i_t)))
 
     @ti.func
     def force(self, model, x, v, i_p, t):
@@ -66,6 +71,6 @@ class Drag(Effect):
         damping = ti.Matrix.zero(model.real, 3, 3)
         for k in range(model.particle_triangle_start[i_p], model.particle_triangle_start[i_p + 1]):
             i_t = model.particle_triangle[k]
-            normal, weight = face_damping(model, x, i_t, -face_velocity(model, v, i_t))
+            normal, weight = face_damping(model, x, i_t, self._air(model, v, i_t))
             damping -= weight * normal.outer_product(normal)
         return ti.Matrix.zero(model.real, 3, 3), model.real(self.face_factor) * damping
