@@ -93,3 +93,28 @@ def test_whole_surface_samples_catch_a_capsule_between_particles():
     assert depth.max() == pytest.approx(0.3)
     assert np.count_nonzero(depth) == 3
     assert sorted(depth[-2:]) == pytest.approx([0.3 - np.sqrt(2) / 6] * 2)
+
+
+def test_a_step_halved_while_settling_is_reported_and_the_dance_takes_the_scenes_step(
+        settled, monkeypatch):
+    """A settling frame that goes bad is redone at half the step (the frame guard); the halving
+    is counted in the settle report, and the run afterwards steps at the scene's own step, not
+    the halved one (which the guard would keep for the rest of a run). The first settling frame
+    is made to fail here. Last in the file: it settles the shared skirt again."""
+    simulation = settled[0]
+    chosen = (simulation.time_step.dt, simulation.time_step.substeps_per_frame)
+    advance = Simulation._advance_refining
+    tried = []
+
+    def first_try_fails(self, frame, record, still):
+        tried.append(self.time_step.dt)
+        if len(tried) == 1:
+            return "failed on purpose", None, None, None, 0, None
+        return advance(self, frame, record, still)
+
+    monkeypatch.setattr(Simulation, "_advance_refining", first_try_fails)
+    report = settle(simulation, RunRecord())
+    assert tried[1] == pytest.approx(tried[0] / 2)  # redone at half the step
+    assert all(dt == pytest.approx(tried[0] / 2) for dt in tried[1:])  # settled at it
+    assert report["retries"] == 1 and report["at_rest"]
+    assert (simulation.time_step.dt, simulation.time_step.substeps_per_frame) == chosen
