@@ -243,3 +243,16 @@ def test_a_frame_stretched_past_redo_strain_is_redone_at_a_smaller_step():
     np.testing.assert_array_equal(guarded.positions(), reference.positions())
     unguarded = Simulation(load_scene("sheet", base))
     assert "strain_halvings" not in unguarded.run(1).frames[1].extra
+
+
+def test_each_guard_counts_only_the_halvings_it_asked_for(monkeypatch):
+    """With both redo guards on (a self-collision scene with ``redo_strain``), a frame redone
+    because it stretched past ``redo_strain`` counts as a strain halving, not a tunnelling one
+    (the crossings here counted as none, so the tunnelling guard never asks)."""
+    base = ("cloth.resolution=[6, 6]", "simulation.integrator=symplectic",
+            "simulation.redo_strain=1e-9")
+    guarded = Simulation(load_scene("sheet", base))
+    monkeypatch.setattr(guarded, "guards_crossings", True)
+    monkeypatch.setattr(guarded.intersections, "count", lambda positions: 0)
+    extra = guarded.run(1).frames[1].extra
+    assert extra["strain_halvings"] in (1, 2) and extra["tunnelling_halvings"] == 0

@@ -219,14 +219,16 @@ class Simulation:
         return float(np.mean(np.linalg.norm(v[free], axis=1))) if free.any() else 0.0
 
     def measure(self, frame: int, x: np.ndarray, v: np.ndarray, crossings: int | None = None,
-                halvings: int = 0, strain: float | None = None) -> FrameMetrics:
+                halvings: dict | None = None, strain: float | None = None) -> FrameMetrics:
         """Metrics of a (checked) state x [m], v [m/s] at ``frame``: energies (kinetic;
         potential = the effects' + the springs'), strain, penetration of the whole surface
         (particles, edge midpoints and triangle centroids: ``metrics.surface_samples``) into
         every collider, mean speed, pairs of triangles through each other
         (``intersections``; ``crossings`` when already counted), centre of mass; with
-        self-collision, how many times the frame's step was halved against tunnelling.
+        self-collision, how many times the frame's step was halved against tunnelling, and
+        with ``redo_strain`` against strain (``halvings``, from ``_advance_refining``).
         ``strain``: x's largest stretch strain when already taken."""
+        halvings = halvings or {"tunnelling": 0, "strain": 0}
         mass = self.model.host_mass
         kinetic = 0.5 * float(np.sum(mass * np.sum(v * v, axis=1)))
         potential = sum(effect.potential_energy(x, mass) for effect in self.effects) \
@@ -240,9 +242,9 @@ class Simulation:
         extra = {name: value for effect in self.effects
                  for name, value in effect.frame_metrics(x).items()}
         if self.guards_crossings:
-            extra["tunnelling_halvings"] = halvings
+            extra["tunnelling_halvings"] = halvings["tunnelling"]
         if self.redo_strain > 0:
-            extra["strain_halvings"] = halvings
+            extra["strain_halvings"] = halvings["strain"]
         return FrameMetrics(
             frame=frame, t=self.frame_time(frame), kinetic_energy=kinetic,
             potential_energy=potential,
@@ -287,9 +289,10 @@ class Simulation:
 
     def _advance_refining(self, frame: int, record: RunRecord, still: bool):
         """One try at ``frame`` from the backed-up state: (problem or None, x, v, crossing pairs
-        or None, halvings, x's largest stretch strain or None). A frame is redone at half the
-        step, then a quarter (``REDO_HALVINGS``), the last try kept (its crossings and strain in
-        the metrics), when it ends
+        or None, halvings, x's largest stretch strain or None), halvings a dict of the
+        ``tunnelling`` and ``strain`` halvings (a try redone for both counts in both). A frame
+        is redone at half the step, then a quarter (``REDO_HALVINGS``), the last try kept (its
+        crossings and strain in the metrics), when it ends
         - with more pairs of triangles through each other than it began with, even after the
           effects' ``repair`` (self-collision declared);
         - with a larger max strain than ``simulation.redo_strain`` (when set), unless a halving
@@ -300,6 +303,7 @@ class Simulation:
         crossings = None
         refines = self.guards_crossings or self.redo_strain > 0
         strain_before = math.inf
+        halved = {"tunnelling": 0, "strain": 0}
         for halvings in range(REDO_HALVINGS + 1 if refines else 1):
             if halvings:
                 self._roll_back()
@@ -325,10 +329,12 @@ class Simulation:
             if self.redo_strain > 0:
                 overstretched = strain > self.redo_strain and strain < REDO_GAIN * strain_before
                 strain_before = strain
-            if not (tunnelled or overstretched):
+            if not (tunnelled or overstretched) or halvings == REDO_HALVINGS:
                 break
+            halved["tunnelling"] += tunnelled
+            halved["strain"] += overstretched
         self.set_time_step(dt, substeps)
-        return problem, x, v, crossings, halvings, strain
+        return problem, x, v, crossings, halved, strain
 
     def _end_state(self):
         """(x [m], v [m/s], x's largest stretch strain or None, ``state_problem``) now."""
