@@ -13,9 +13,8 @@ Per frame the rig poses the body (capsules, pinned waist) across the frame, then
 advances ``state_in → state_out`` substep by substep in kernel launches of several substeps; the
 two states swap. No Python loop over particles and no copy to the host happens inside the
 substep loop. Per frame the state is copied to NumPy once for the metrics (``physics.metrics``)
-and the stability check: a non-finite or exploded state is rolled back and redone with the step
-halved, and in the end stops the run with ``UnstableError`` (exit code 3) before anything of that
-frame is written.
+and the stability check: a non-finite or exploded state is redone with the step halved, and in
+the end stops the run (``UnstableError``, exit code 3) before anything of that frame is written.
 """
 
 import dataclasses
@@ -224,11 +223,8 @@ class Simulation:
         potential = the effects' + the springs'), strain, penetration of the whole surface
         (particles, edge midpoints and triangle centroids: ``metrics.surface_samples``) into
         every collider, mean speed, pairs of triangles through each other
-        (``intersections``; ``crossings`` when already counted), centre of mass; with
-        self-collision, how many times the frame's step was halved against tunnelling, and
-        with ``redo_strain`` against strain (``halvings``, from ``_advance_refining``).
-        ``strain``: x's largest stretch strain when already taken."""
-        halvings = halvings or {"tunnelling": 0, "strain": 0}
+        (``intersections``; ``crossings`` when already counted), centre of mass; the frame's
+        ``halvings`` of each redo guard on. ``strain``: x's largest stretch strain if taken."""
         mass = self.model.host_mass
         kinetic = 0.5 * float(np.sum(mass * np.sum(v * v, axis=1)))
         potential = sum(effect.potential_energy(x, mass) for effect in self.effects) \
@@ -242,9 +238,9 @@ class Simulation:
         extra = {name: value for effect in self.effects
                  for name, value in effect.frame_metrics(x).items()}
         if self.guards_crossings:
-            extra["tunnelling_halvings"] = halvings["tunnelling"]
+            extra["tunnelling_halvings"] = (halvings or {}).get("tunnelling", 0)
         if self.redo_strain > 0:
-            extra["strain_halvings"] = halvings["strain"]
+            extra["strain_halvings"] = (halvings or {}).get("strain", 0)
         return FrameMetrics(
             frame=frame, t=self.frame_time(frame), kinetic_energy=kinetic,
             potential_energy=potential,
@@ -289,10 +285,9 @@ class Simulation:
 
     def _advance_refining(self, frame: int, record: RunRecord, still: bool):
         """One try at ``frame`` from the backed-up state: (problem or None, x, v, crossing pairs
-        or None, halvings, x's largest stretch strain or None), halvings a dict of the
-        ``tunnelling`` and ``strain`` halvings (a try redone for both counts in both). A frame
-        is redone at half the step, then a quarter (``REDO_HALVINGS``), the last try kept (its
-        crossings and strain in the metrics), when it ends
+        or None, the ``tunnelling`` and ``strain`` halvings, x's largest stretch strain or None).
+        A frame is redone at half the step, then a quarter (``REDO_HALVINGS``), the last try kept
+        (its crossings and strain in the metrics), when it ends
         - with more pairs of triangles through each other than it began with, even after the
           effects' ``repair`` (self-collision declared);
         - with a larger max strain than ``simulation.redo_strain`` (when set), unless a halving
