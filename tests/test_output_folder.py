@@ -221,3 +221,18 @@ def test_the_summary_fits_in_100_columns():
     lines = text.removesuffix(" → /a/long/output/folder").splitlines()
     assert len(lines) <= 6 and all(len(line) <= 100 for line in lines)
     assert sum(line.count("12345.68 s") for line in lines) == 6
+
+
+def test_the_summary_says_how_to_add_self_collision_only_where_the_cloth_crossed_without_it():
+    from taichi_cloth.output.run import summary
+    stats = {"scene": "hula", "frames": 150, "integrator": "implicit", "dt": 1 / 60,
+             "substeps_per_frame": 2, "retries": 0, "time_step": {"requested": 1 / 60},
+             "max_strain": 0.02, "max_penetration": 0.0, "wall_seconds": {"simulate": 2.0}}
+    hint = "--set effects.self_collision=true"
+    for effects, crossings, shown in ((["gravity", "collision"], 313, True),
+                                      (["gravity", "collision"], 0, False),
+                                      (["gravity", "self_collision"], 2, False)):
+        text = summary(stats | {"effects": effects, "max_self_intersections": crossings},
+                       Path("out"))
+        assert (hint in text) == shown
+        assert all(len(line) <= 100 for line in text.removesuffix(" → out").splitlines())

@@ -279,8 +279,9 @@ def resume_command() -> str:
 
 def summary(stats: dict, directory: Path) -> str:
     """A few lines of at most 100 columns (the folder's path aside): frames, integrator and step
-    (and how ``dt = "auto"`` chose it); strain, penetration and self-crossings; seconds per phase
-    and where the files are."""
+    (and how ``dt = "auto"`` chose it); strain, penetration and self-crossings (with how to add
+    self-collision where the cloth crossed itself without it); seconds per phase and where the
+    files are."""
     seconds = ", ".join(f"{phase} {value:.2f} s" for phase, value in stats["wall_seconds"].items())
     step = stats["time_step"]
     retries = f", {stats['retries']} halvings" if stats["retries"] else ""
@@ -294,5 +295,8 @@ def summary(stats: dict, directory: Path) -> str:
     lines.append(f"  max strain {stats['max_strain']:.4f}, max penetration "
                  f"{stats['max_penetration'] * 1000:.2f} mm, at most "
                  f"{stats['max_self_intersections']} pairs of triangles through each other")
+    if stats["max_self_intersections"] and "self_collision" not in stats.get("effects", ()):
+        lines.append("  (no self-collision in this scene: --set effects.self_collision=true "
+                     "adds it, on the CPU)")
     lines += textwrap.wrap(seconds, 100, initial_indent="  ", subsequent_indent="  ")
     return "\n".join(lines) + f" → {directory}"
