@@ -11,14 +11,13 @@ import taichi as ti
 
 
 @ti.func
-def plate_pressure(edge_a: ti.template(), edge_b: ti.template(), air_velocity: ti.template()):
-    """The flat plate's pressure on the triangle spanned by edges ``edge_a`` and ``edge_b`` [m]
-    from air moving at ``air_velocity`` relative to it [m/s], each given as its three components
-    (x, y, z): the components of A·(u·n)|u·n|·n [m⁴/s²] (without the ½ρC_d factor; 0 for a
-    degenerate triangle). Written on components, so that one formula serves a Taichi vector's
-    components and the SIMD lanes of ``physics.packed_grid`` (SIMD_LANES-vectors, one triangle
-    per lane)."""
-    a, b, u = edge_a, edge_b, air_velocity
+def unit_normal_and_twice_area(edge_a: ti.template(), edge_b: ti.template()):
+    """(n, 2A) of the triangle spanned by edges ``edge_a`` and ``edge_b`` [m], each given as its
+    three components: its unit normal n = a × b / |a × b| as three components (0 for a
+    degenerate triangle) and twice its area |a × b| [m²]. On components, so that one formula
+    serves a Taichi vector's components and the SIMD lanes of ``physics.packed_grid``
+    (SIMD_LANES-vectors, one triangle per lane)."""
+    a, b = edge_a, edge_b
     twice_area_normal = (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2],
                          a[0] * b[1] - a[1] * b[0])
     twice_area = ti.sqrt(twice_area_normal[0] * twice_area_normal[0]
@@ -27,6 +26,17 @@ def plate_pressure(edge_a: ti.template(), edge_b: ti.template(), air_velocity: t
     inverse = 1.0 / ti.max(twice_area, 1e-30)
     n = (twice_area_normal[0] * inverse, twice_area_normal[1] * inverse,
          twice_area_normal[2] * inverse)
+    return n, twice_area
+
+
+@ti.func
+def plate_pressure(edge_a: ti.template(), edge_b: ti.template(), air_velocity: ti.template()):
+    """The flat plate's pressure on the triangle spanned by edges ``edge_a`` and ``edge_b`` [m]
+    from air moving at ``air_velocity`` relative to it [m/s], each given as its three components
+    (x, y, z): the components of A·(u·n)|u·n|·n [m⁴/s²] (without the ½ρC_d factor; 0 for a
+    degenerate triangle), on components as ``unit_normal_and_twice_area``."""
+    u = air_velocity
+    n, twice_area = unit_normal_and_twice_area(edge_a, edge_b)
     normal_speed = u[0] * n[0] + u[1] * n[1] + u[2] * n[2]
     magnitude = 0.5 * twice_area * normal_speed * ti.abs(normal_speed)
     return magnitude * n[0], magnitude * n[1], magnitude * n[2]
@@ -56,7 +66,6 @@ def face_damping(model, x, i_t, air_velocity):
     A·(u·n)|u·n|·n is 2A·|u·n|·n·nᵀ, ∂u/∂v_corner = −I/3 and a corner gets a third of the face's
     force, so w = (2/9)·A·|u·n| (without the ½ρC_d factor; the normal's rotation left out)."""
     tri = model.triangles[i_t]
-    twice_area_normal = (x[tri[1]] - x[tri[0]]).cross(x[tri[2]] - x[tri[0]])
-    twice_area = twice_area_normal.norm()
-    normal = twice_area_normal / ti.max(twice_area, 1e-30)
+    n, twice_area = unit_normal_and_twice_area(x[tri[1]] - x[tri[0]], x[tri[2]] - x[tri[0]])
+    normal = ti.Vector([n[0], n[1], n[2]])
     return normal, (1.0 / 9.0) * twice_area * ti.abs(air_velocity.dot(normal))
