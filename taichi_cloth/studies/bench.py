@@ -214,7 +214,9 @@ def report(rows: list[dict], fits: dict) -> str:
                          f"start-up {row['startup_seconds']:.2f} s, compile "
                          f"{row['compile_seconds']:.2f} s, settling {row['settle_seconds']:.2f} s; "
                          f"self-intersection count {row['self_intersection_ms_per_frame']:.2f} ms "
-                         f"per frame (at most {row['max_self_intersections']} pairs)")
+                         f"per frame (at most {row['max_self_intersections']} pairs)"
+                         + (f"; self-collision's list built {row['self_collision_builds']} "
+                            f"times in {row['steps']} steps" if "steps" in row else ""))
         elif kind == "implicit-large-step":
             parts.append(f"implicit, {row['size']}x{row['size']} sheet, dt = 1/60 s: "
                          f"{format_rate(row['substeps_per_second'])} steps/s = "

@@ -224,7 +224,9 @@ def bench_scene_run(scene_name: str, overrides: tuple = ()) -> dict:
     """The whole scene, every frame, as ``simulate`` runs it (settling first): start-up (the
     scene read, the simulation built, the step chosen), compile, settle and simulated seconds
     per wall second of the frames, each timed on its own (the frames' seconds include the
-    per-frame metrics; the self-intersection count is also timed alone on the last frame)."""
+    per-frame metrics; the self-intersection count is also timed alone on the last frame); with
+    self-collision, how many times its list was built in the frames' steps (a frame redone at a
+    smaller step counts the builds of the try it keeps, and takes more steps than ``steps``)."""
     from taichi_cloth.physics.metrics import RunRecord
     from taichi_cloth.physics.settling import settle
     started = time.perf_counter()
@@ -245,6 +247,10 @@ def bench_scene_run(scene_name: str, overrides: tuple = ()) -> dict:
     for _ in range(METRIC_REPEATS):
         simulation.intersections.count(final)
     intersection_seconds = (time.perf_counter() - started) / METRIC_REPEATS
+    builds = {}
+    if "self_collision" in stats["effects"]:  # how often a step paid for the list's rebuild
+        counts = [frame["self_collision_builds"] for frame in stats["per_frame"]]
+        builds = {"self_collision_builds": counts[-1] - counts[0], "steps": substeps}
     return {"benchmark": "scene-run", "scene": scene_name, "overrides": list(overrides),
             "integrator": simulation.scene.simulation.integrator,
             "size": f"{simulation.garment.columns}x{simulation.garment.rows}",
@@ -260,4 +266,4 @@ def bench_scene_run(scene_name: str, overrides: tuple = ()) -> dict:
             "max_strain": stats["max_strain"], "max_penetration": stats["max_penetration"],
             "max_self_intersections": stats["max_self_intersections"],
             "self_intersection_ms_per_frame": round(1e3 * intersection_seconds, 3),
-            **({"cg": stats["cg"]} if "cg" in stats else {})}
+            **({"cg": stats["cg"]} if "cg" in stats else {}), **builds}
