@@ -10,6 +10,13 @@ from taichi_cloth.errors import InputError
 
 ARCHES = {"cpu": ti.cpu, "cuda": ti.cuda, "vulkan": ti.vulkan, "gpu": ti.gpu}
 ARCH_NAMES = tuple(ARCHES)  # --arch and simulation.arch
+# Taichi's own optimisation of a kernel's stores and loads (``cfg_optimization``: store-to-load
+# forwarding over reaching definitions, then dead stores) costs more than the rest of a compile
+# and grows faster than the kernel (40 of the 47 s that `fold`'s frame kernel spent in Taichi's
+# passes); LLVM, which optimises the code next, keeps local variables in registers itself.
+# Off on the CPU: the kernels compile 2-3 times faster and step as fast, within the noise
+# (docs/performance.md, "Where a compile's time goes"). On for the GPU archs, unmeasured there.
+CFG_OPTIMIZATION_ON_CPU = False
 
 
 def taichi_started() -> bool:
@@ -27,6 +34,8 @@ def start_taichi(arch: str = "cpu", kernel_profiler: bool = False,
         return
     ast_transformer_utils.ASTTransformerContext.get_pos_info = short_position_info
     options = {} if threads is None else {"cpu_max_num_threads": threads}
+    if arch == "cpu":
+        options["cfg_optimization"] = CFG_OPTIMIZATION_ON_CPU
     with contextlib.redirect_stdout(io.StringIO()):  # ti.init prints "Starting on arch=..."
         ti.init(arch=ARCHES[arch], random_seed=0, kernel_profiler=kernel_profiler, **options)
     if arch != "cpu" and ti.lang.impl.current_cfg().arch == ti.cpu:

@@ -204,7 +204,7 @@ class CapsuleContact(Effect):
         mask = 0
         for i_c in range(self.capsule_count):
             if (position - self.capsule_center[i_c]).norm_sqr() < self.mask_sphere_sq[i_c]:
-                depth, _, _, _, _, _ = self.probe(i_c, position)
+                depth = self.probe(i_c, position)[0]
                 if depth > -self.model.real(self.mask_slack):
                     mask |= 1 << i_c
         return mask
@@ -284,7 +284,8 @@ class CapsuleContact(Effect):
         i_c = self._next_capsule(0, mask)
         while i_c < self.capsule_count:
             if self.near(i_c, position):
-                depth, normal, distance, _, _, surface_velocity = self.probe(i_c, position)
+                depth, normal, distance, _segment, _axis, surface_velocity = self.probe(
+                    i_c, position)
                 if depth > 0 and distance > 0:
                     f += penalty_force(mass, depth, normal, velocity - surface_velocity,
                                        real(self.stiffness), real(self.damping_ratio),
@@ -375,7 +376,8 @@ class CapsuleContact(Effect):
         for i_p in range(model.particle_count):
             if model.particle_inv_mass[i_p] > 0:
                 for i_c in range(self.capsule_count):
-                    depth, normal, distance, _, _, surface_velocity = self.probe(i_c, x[i_p])
+                    depth, normal, distance, _segment, _axis, surface_velocity = self.probe(
+                        i_c, x[i_p])
                     if depth > 0 and distance > 0:
                         x[i_p] += depth * normal
                         inward = (v[i_p] - surface_velocity).dot(normal)
