@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from taichi_cloth.body.capsules import DISPLAY_CAPSULE_NAMES
 from taichi_cloth.body.dancer import Body
 
 # Default skirt rest shape (knee length): a cone from radius waist_radius at waist_height
@@ -64,8 +65,9 @@ def dance():
 
 def test_capsule_counts_and_names():
     coarse, split = Body(capsules="coarse"), Body(capsules="split")
-    assert coarse.capsule_count == 6 and split.capsule_count == 13
-    assert coarse.capsule_names == ("pelvis", "back", "thigh_left", "thigh_right", "shin_left", "shin_right")
+    assert coarse.capsule_count == 7 and split.capsule_count == 14
+    assert coarse.capsule_names == ("pelvis", "back", "thigh_left", "thigh_right", "shin_left",
+                                    "shin_right", "shoulders")
     assert split.capsule_names[:3] == ("pelvis", "back_lower", "back_upper")
     for body in (coarse, split):
         assert len(set(body.capsule_names)) == body.capsule_count
@@ -76,6 +78,28 @@ def test_capsule_counts_and_names():
         assert body.display_capsule_radius.shape == (body.display_capsule_count,)
     thigh = split.capsule_radius[leg_capsule_index(split, "thigh_left")]
     assert np.all(np.diff(thigh) < 0.0) and 0.08 <= thigh[0] <= 0.09 and 0.05 <= thigh[-1] <= 0.06
+
+
+@pytest.mark.parametrize("capsules", ["coarse", "split"])
+@pytest.mark.parametrize("motion", ["hula", "walk"])
+def test_the_torso_ends_in_shoulders_below_the_head(capsules, motion):
+    """The shoulder capsule runs from one shoulder joint (where the arms start) to the other, and
+    no collision capsule reaches the head: the back's domes end at the shoulders' height."""
+    body = Body(motion=motion, capsules=capsules)
+    shoulders = body.capsule_names.index("shoulders")
+    head = DISPLAY_CAPSULE_NAMES.index("head")
+    for t in (0.0, 1.3, 2.6):
+        pose = body.pose(t)
+        np.testing.assert_allclose([pose.capsule_a[shoulders], pose.capsule_b[shoulders]],
+                                   pose.display_capsule_a[2:4], atol=1e-12)  # the upper arms'
+        tops = np.maximum(pose.capsule_a[:, 1], pose.capsule_b[:, 1]) + body.capsule_radius
+        head_bottom = (min(pose.display_capsule_a[head][1], pose.display_capsule_b[head][1])
+                       - body.display_capsule_radius[head])
+        assert tops.max() < head_bottom
+        back = [i for i, name in enumerate(body.capsule_names) if name.startswith("back")]
+        assert tops[back].max() == pytest.approx(tops[shoulders], abs=0.02)
+    start, end = body.layout.bones(pose.capsule_a, pose.capsule_b)  # the back bone's end,
+    np.testing.assert_allclose(end[1], pose.chest_position, atol=1e-12)  # past its capsules
 
 
 @pytest.mark.parametrize("t", [0.0, 3.3])

@@ -72,5 +72,5 @@ def test_drape_comes_to_rest_on_the_bar():
 def test_both_capsule_layouts_run(layout):
     simulation, record, _ = run_scene("hula", f"body.capsules={layout}",
                                       "cloth.resolution=[32, 14]", frames=10)
-    assert simulation.body_rig.capsule_count == {"coarse": 6, "split": 13}[layout]
+    assert simulation.body_rig.capsule_count == {"coarse": 7, "split": 14}[layout]
     assert record.max_penetration < 0.01

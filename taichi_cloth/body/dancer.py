@@ -5,7 +5,9 @@ segment a-b plus a radius r), after Sakoma et al., "Attempt of Cloth
 Animation by Considering the Collision with the Object II": the layout
 ``"coarse"`` (their Fig. 3) uses one capsule per bone, ``"split"`` (their
 Fig. 4) splits the back in 2, each thigh in 3 and each shin in 2, with the
-sub-capsules of one bone tiling its segment and their radii tapering.
+sub-capsules of one bone tiling its segment and their radii tapering.  Both
+add a shoulder capsule from shoulder joint to shoulder joint, which the
+paper's skirt never reaches, for garments that hang from the shoulders.
 
 Coordinates: SI metres and seconds, y up, the dancer stands at the origin
 on the ground plane y = 0, faces +z, her left is +x.  All lengths below are
@@ -14,7 +16,9 @@ for an adult woman of 1.6 m and are multiplied by ``Body.scale``.
 Skeleton (rest pose, ``scale = 1``)::
 
     head top          1.59 m      (display only)
-    shoulders/neck    1.33 m      back bone: waist centre -> neck base
+    neck base         1.33 m      back bone: waist centre -> neck base (its
+                                  capsules cover the lower 3/4 of it)
+    shoulder joints   1.30 m      x = +-0.17 m, the shoulder bone between them
     waist centre      0.99 m      pelvis frame origin, skirt waist circle
     hip joints        0.82 m      x = +-0.09 m
     knees             ~0.43 m     thigh 0.39 m, shin 0.365 m, knees bent 13 deg
@@ -208,8 +212,8 @@ class Body:
         hip circle radius 3.5 cm, hip tilt 5 deg, yaw 4 deg, pitch 3 deg; the pelvis sinks
         (1.5 cm + 1 cm dips) as amplitude^2.  The kaholo steps (12 cm, feet lifted 2 cm) do
         not scale with it.
-    capsules : collision layout, ``"coarse"`` (6 capsules, one per bone) or ``"split"``
-        (13 capsules: back 2, pelvis 1, thighs 3 each, shins 2 each).
+    capsules : collision layout, ``"coarse"`` (7 capsules, one per bone) or ``"split"``
+        (14 capsules: back 2, pelvis 1, thighs 3 each, shins 2 each, shoulders 1).
     scale : multiplies every length (1 = a 1.6 m tall woman).
     ease_in : seconds over which the dance fades in from the rest pose (>= 0), by the C2
         envelope E(s) = 6 s^5 - 15 s^4 + 10 s^3, s = clamp(t / ease_in, 0, 1).
@@ -374,11 +378,14 @@ class Body:
         pelvis_half_segment = np.array([[-PELVIS_HALF_WIDTH, 0.0, 0.0], [PELVIS_HALF_WIDTH, 0.0, 0.0]])
         pelvis_segment = pelvis_position + (np.array(PELVIS_CENTRE_LOCAL) + pelvis_half_segment) @ pelvis_rotation.T
 
-        bone_start = np.stack([pelvis_segment[0], pelvis_position, hip[0], hip[1], knee[0], knee[1]])
-        bone_end = np.stack([pelvis_segment[1], neck_base, knee[0], knee[1], ankle[0], ankle[1]])
+        shoulder = np.array([_SHOULDER_LOCAL, mirror * _SHOULDER_LOCAL])
+        shoulder_world = neck_base + shoulder @ back_rotation.T
+        bone_start = np.stack([pelvis_segment[0], pelvis_position, hip[0], hip[1], knee[0], knee[1],
+                               shoulder_world[0]])
+        bone_end = np.stack([pelvis_segment[1], neck_base, knee[0], knee[1], ankle[0], ankle[1],
+                             shoulder_world[1]])
         capsule_a, capsule_b = self.layout.tile(bone_start, bone_end)
 
-        shoulder = np.array([_SHOULDER_LOCAL, mirror * _SHOULDER_LOCAL])
         elbow = shoulder + np.array([_UPPER_ARM_LOCAL, mirror * _UPPER_ARM_LOCAL])
         wrist = elbow + np.array([_FOREARM_LOCAL, mirror * _FOREARM_LOCAL])
         chest_local_a = np.array([(0.0, 0.0, 0.0), _HEAD_SEGMENT_LOCAL[0], *shoulder, *elbow])

@@ -20,8 +20,9 @@ Then, in this order:
   2 cm), or ``loop = "yes"``, loops; otherwise it holds its last frame. The dance eases in: clip
   time τ(t) = start + ease_in·G(t/ease_in) with G′ the quintic smoothstep, so the body starts
   still in the clip's first frame (where the garment settles) and reaches full speed at ease_in;
-- capsules: the procedural dancer's bones (``dancer.BONES``: pelvis, back, thighs, shins) and
-  capsule layout between the file's joints, radii scaled by the leg length; the pelvis frame
+- capsules: the procedural dancer's bones (``capsules.BONES``: pelvis, back, thighs, shins,
+  shoulders) and capsule layout between the file's joints, radii scaled by the leg length; the
+  pelvis frame
   (the skirt's waist) is built from the hips (x: her left), the neck (y: up) and sits
   ``WAIST_ABOVE_HIPS`` above the hip joints: in the first frame its axes are her left (left
   hip − right hip) and up (hips → neck), after that it turns as the root joint does.
@@ -255,8 +256,10 @@ class MocapBody:
         pelvis = waist + np.array([centre - half, centre + half]) @ rotation.T
         knee = joints[[index("knee_left"), index("knee_right")]]
         ankle = joints[[index("ankle_left"), index("ankle_right")]]
-        start = np.stack([pelvis[0], waist, hip[0], hip[1], knee[0], knee[1]])
-        end = np.stack([pelvis[1], joints[index("neck")], knee[0], knee[1], ankle[0], ankle[1]])
+        shoulder = joints[[index("shoulder_left"), index("shoulder_right")]]
+        start = np.stack([pelvis[0], waist, hip[0], hip[1], knee[0], knee[1], shoulder[0]])
+        end = np.stack([pelvis[1], joints[index("neck")], knee[0], knee[1], ankle[0], ankle[1],
+                        shoulder[1]])
         return start, end, waist
 
     def pose(self, t: float) -> BodyPose:
