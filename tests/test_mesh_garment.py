@@ -273,11 +273,11 @@ def test_a_dress_hangs_from_straps_that_ride_on_the_chest():
     np.testing.assert_allclose(simulation.positions()[garment.pinned], carried, atol=1e-5)
     rest = rig.body.pose(0.0)
     assert np.abs(pose.chest_position - rest.chest_position).max() > 1e-3  # she walked
-    # the straps lie on her shoulders: the pinned parts (their ends where the half ellipse
-    # leaves the capsule's round) at most 3 cm off the shoulder capsule, none inside it
+    # the straps lie over her shoulders: their apex 3 cm over the shoulder capsule, the pinned
+    # parts' lowest particles (at this coarse resolution, 4.5 cm rows) at most 7 cm off it
     shoulders = rig.body.capsule_names.index("shoulders")
     a, b = pose.capsule_a[shoulders], pose.capsule_b[shoulders]
     along = np.clip((carried - a) @ (b - a) / ((b - a) @ (b - a)), 0.0, 1.0)
     gap = (np.linalg.norm(carried - (a + along[:, None] * (b - a)), axis=1)
            - rig.body.capsule_radius[shoulders])
-    assert scene.effects["collision"].thickness < gap.min() and gap.max() < 0.03
+    assert gap.min() == pytest.approx(0.03, abs=0.005) and gap.max() < 0.07
