@@ -97,7 +97,7 @@ def test_the_torso_ends_in_shoulders_below_the_head(capsules, motion):
                        - body.display_capsule_radius[head])
         assert tops.max() < head_bottom
         back = [i for i, name in enumerate(body.capsule_names) if name.startswith("back")]
-        assert tops[back].max() == pytest.approx(tops[shoulders], abs=0.02)
+        assert tops[back].max() == pytest.approx(tops[shoulders], abs=0.03)
     start, end = body.layout.bones(pose.capsule_a, pose.capsule_b)  # the back bone's end,
     np.testing.assert_allclose(end[1], pose.chest_position, atol=1e-12)  # past its capsules
 
