@@ -5,8 +5,9 @@ procedural dancer (``dancer.py``) and a motion capture clip (``mocap.py``) pose 
 
 Beyond the paper's bones (pelvis, back, legs: all a skirt meets) the body has shoulders, a bone
 from the left shoulder joint to the right one, so that a garment hanging from them (a dress's
-straps) has something to lie on; the back's capsules end ``BACK_EXTENT`` of the way from the
-waist to the neck base, their domes meeting the shoulders instead of rising beside the head."""
+straps) has something to lie on; the back's capsules end ``BONE_EXTENT["back"]`` of the way
+from the waist to the neck base, their domes meeting the shoulders instead of rising beside the
+head."""
 
 from types import MappingProxyType
 

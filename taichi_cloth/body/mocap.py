@@ -22,9 +22,8 @@ Then, in this order:
   still in the clip's first frame (where the garment settles) and reaches full speed at ease_in;
 - capsules: the procedural dancer's bones (``capsules.BONES``: pelvis, back, thighs, shins,
   shoulders) and capsule layout between the file's joints, radii scaled by the leg length; the
-  pelvis frame
-  (the skirt's waist) is built from the hips (x: her left), the neck (y: up) and sits
-  ``WAIST_ABOVE_HIPS`` above the hip joints: in the first frame its axes are her left (left
+  pelvis frame (the skirt's waist) is built from the hips (x: her left), the neck (y: up) and
+  sits ``WAIST_ABOVE_HIPS`` above the hip joints: in the first frame its axes are her left (left
   hip − right hip) and up (hips → neck), after that it turns as the root joint does.
   Velocities are the spline's exact derivatives.
 

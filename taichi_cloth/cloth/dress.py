@@ -11,10 +11,10 @@ shoulder straps, one mesh built in its worn shape and then made into a garment a
   are ``STRAP_OFFSET`` from the body's middle plane, over the shoulder to the same columns at her
   back: a half ellipse in the plane x = const of each column it spans, ``STRAP_RISE`` above the top
   edge at its apex (3 cm over the body's shoulder capsule, whose top is 9 cm above the
-  bodice's edge: closer, the strap pressed on the capsule jerked its pinned ends to 4–5 % strain
-  in single frames), as many columns wide as ``strap_width`` needs and with rows about as far
-  apart as the tube's. The straps share their
-  end rows with the bodice's top edge, so the mesh is one manifold piece.
+  bodice's edge: at 1–2 cm, the strap pressed on the capsule jerked its pinned ends to 3–5 %
+  strain in single frames), as many columns wide as ``strap_width`` needs and with rows about as
+  far apart as the tube's. The straps share their end rows with the bodice's top edge, so the
+  mesh is one manifold piece.
 - Pins (``pin = "shoulders"``): the part of each strap that lies over the shoulder (its faces
   where sin φ > ``SHOULDER_SINE``, the middle 60 % of the arc, down to 7 cm over the bodice's
   edge), carried by the chest frame: a dancer's shoulders hold a dress up by their sloping shape
