@@ -201,6 +201,9 @@ def build_parser() -> argparse.ArgumentParser:
                        help="timed repeats per figure, the median is reported (default 3)")
     bench.add_argument("--arch", choices=ARCH_NAMES, default="cpu",
                        help="Taichi backend (default cpu)")
+    bench.add_argument("--threads", type=int, metavar="N",
+                       help="CPU threads for Taichi (default: one per core of the machine; with "
+                            "taskset -c on N cores, the figures of an N-core machine)")
     bench.add_argument("--quiet", action="store_true", help="no progress lines")
     fabric = commands.add_parser(
         "fabric-test", help="the virtual textile lab: the cantilever bending test (ASTM D1388) "
@@ -379,7 +382,8 @@ def run_command(args) -> int:
         if args.command == "bench":
             from taichi_cloth.studies.bench import bench_command
             return bench_command(args.sizes, args.integrators, args.scene, args.json,
-                                 args.seconds, args.repeats, args.arch, args.quiet, args.profile)
+                                 args.seconds, args.repeats, args.arch, args.quiet, args.profile,
+                                 args.threads)
         if args.command == "fabric-test":
             from taichi_cloth.studies.fabric_lab import fabric_test_command
             arch = [f"simulation.arch={args.arch}"] if args.arch else []

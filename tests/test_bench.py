@@ -90,6 +90,8 @@ def test_bench_sizes_writes_valid_json(tmp_path, capsys):
                  "--repeats", "2", "--quiet", "--json", str(target)])
     assert code == 0
     rows = json.loads(target.read_text())
+    assert rows[0] == {"benchmark": "machine", "arch": "cpu",
+                       "cpu_threads": ti.lang.impl.current_cfg().cpu_max_num_threads}
     reference = [r for r in rows if r["benchmark"] == "reference"]
     assert {r["integrator"] for r in reference} == {"symplectic", "numpy-symplectic"}
     for row in reference:
@@ -103,6 +105,11 @@ def test_bench_sizes_writes_valid_json(tmp_path, capsys):
 def test_bench_rejects_bad_sizes(capsys):
     assert main(["bench", "--sizes", "3"]) == 2
     assert "--sizes" in capsys.readouterr().err
+
+
+def test_bench_rejects_a_thread_count_below_one(capsys):
+    assert main(["bench", "--sizes", "16", "--threads", "0"]) == 2
+    assert "--threads" in capsys.readouterr().err
 
 
 def test_a_whole_run_reports_its_self_collision_builds_only_with_self_collision():

@@ -33,7 +33,7 @@ from taichi_cloth.cloth.garment import build_garment
 from taichi_cloth.physics.integrators import INTEGRATORS, make_integrator
 from taichi_cloth.config.materials import Material
 from taichi_cloth.physics.model import Model
-from taichi_cloth.runtime import start_taichi
+from taichi_cloth.runtime import start_taichi, taichi_threads
 from taichi_cloth.config.scene import load_scene
 from taichi_cloth.config.tables import ClothConfig
 from taichi_cloth.physics.control import Control
@@ -226,12 +226,14 @@ def report(rows: list[dict], fits: dict) -> str:
 
 
 def run_bench(sizes, integrators, scene_names, seconds: float, repeats: int,
-              arch: str = "cpu", progress=None, profile: bool = False) -> tuple[list[dict], dict]:
+              arch: str = "cpu", progress=None, profile: bool = False,
+              threads: int | None = None) -> tuple[list[dict], dict]:
     """Rows of every requested part and the scaling fits. ``sizes``/``integrators`` None and
     ``scene_names`` None: everything (the default sizes and integrators, ``REAL_SCENES``, hula's
     effects and passes, hula at 128 × 56, the implicit large step); given sizes or integrators
-    alone: the sizes table only; scenes alone: their parts only (effects and passes too)."""
-    start_taichi(arch, kernel_profiler=profile)
+    alone: the sizes table only; scenes alone: their parts only (effects and passes too).
+    threads: Taichi's CPU thread count (None: one per core)."""
+    start_taichi(arch, kernel_profiler=profile, threads=threads)
     everything = sizes is None and integrators is None and scene_names is None
     rows = []
     say = progress or (lambda message: None)
@@ -269,8 +271,9 @@ def rows_document(rows: list[dict], fits: dict) -> list[dict]:
 
 def bench_command(sizes: str | None, integrators: str | None, scenes: str | None,
                   json_path: str | None, seconds: float, repeats: int, arch: str,
-                  quiet: bool, profile: bool = False) -> int:
-    """The ``bench`` command: the report on the console, the rows as JSON to ``json_path``."""
+                  quiet: bool, profile: bool = False, threads: int | None = None) -> int:
+    """The ``bench`` command: the report on the console, the rows as JSON to ``json_path``
+    (with a first row naming the backend and its CPU thread count)."""
     from pathlib import Path
 
     from taichi_cloth.errors import InputError
@@ -282,6 +285,8 @@ def bench_command(sizes: str | None, integrators: str | None, scenes: str | None
         if integrators is not None else None
     if not (0 < seconds < 3600) or repeats < 1:  # also refuses nan
         raise InputError("--seconds must be between 0 and 3600 and --repeats at least 1")
+    if threads is not None and threads < 1:
+        raise InputError(f"--threads must be at least 1 (got {threads})")
     scene_names = None
     if scenes is not None:
         scene_names = [name.strip() for name in scenes.split(",") if name.strip()]
@@ -291,10 +296,12 @@ def bench_command(sizes: str | None, integrators: str | None, scenes: str | None
             load_scene(name)  # a bad name fails before any measuring
     say = None if quiet else (lambda message: print(f"bench: {message}", flush=True))
     rows, fits = run_bench(size_list, integrator_list, scene_names, seconds, repeats, arch, say,
-                           profile)
+                           profile, threads)
+    machine = {"benchmark": "machine", "arch": arch, "cpu_threads": taichi_threads()}
+    print(f"Taichi on {arch}, {machine['cpu_threads']} CPU threads")
     print(report(rows, fits))
     if profile:
         ti.profiler.print_kernel_profiler_info()
     if json_path:
-        write_json(Path(json_path), rows_document(rows, fits))
+        write_json(Path(json_path), [machine] + rows_document(rows, fits))
     return 0
