@@ -1,13 +1,16 @@
-"""Backends agree: the same small scene simulated on the CPU (this session's runtime) and on
-Vulkan (a fresh process: Mesa's lavapipe where there is no GPU, as in CI) or CUDA (where there is
-an NVIDIA GPU; skipped elsewhere) gives the same trajectory within float32 rounding with an
-explicit integrator. (A whole frame used to run in one serialized launch on Vulkan too, whose
-GPU-style loops ran the substeps side by side: the sheet barely fell, exit 0.) The implicit
-integrator runs on CUDA with the block-Jacobi CG (the CPU's is Gauss–Seidel: the two solves agree
-to their tolerance, not to rounding); on Vulkan, where its CG breaks down at random, it is refused
-with exit 2 rather than run. (Self-collision is refused on every GPU arch: tests/test_scene.py.)"""
+"""Backends agree: the same small scene simulated on the CPU (this session's runtime) and on Vulkan
+(a fresh process: Mesa's lavapipe where there is no GPU, as in CI) or CUDA (where there is an
+NVIDIA GPU; skipped elsewhere) gives the same trajectory within float32 rounding with an explicit
+integrator. (A whole frame used to run in one serialized launch on Vulkan too, whose GPU-style
+loops ran the substeps side by side: the sheet barely fell, exit 0.) The implicit integrator runs
+on CUDA with the block-Jacobi CG (the CPU's is Gauss–Seidel: the two solves agree to their
+tolerance, not to rounding). A sheet large enough for the CPU's packed grid (its SIMD pass; GPU
+archs gather) is compared with CUDA as well. On Vulkan, where the implicit CG breaks down at
+random, that integrator is refused with exit 2 rather than run. (Self-collision is refused on every
+GPU arch: tests/test_scene.py.)"""
 
 import json
+import math
 import os
 import subprocess
 import sys
@@ -17,6 +20,7 @@ import numpy as np
 import pytest
 
 from taichi_cloth import cli
+from taichi_cloth.physics.packed_grid import PACKED_PARTICLE_MINIMUM
 
 REPO = Path(__file__).resolve().parent.parent
 FRAMES = 10
@@ -24,6 +28,9 @@ POSITION_TOLERANCE = 1e-5  # m: float32 rounding over ten frames of a 1 m sheet
 ENERGY_TOLERANCE = 1e-3  # relative
 SOLVE_POSITION_TOLERANCE = 1e-4  # m: two preconditioners, each solve to its CG tolerance
 SOLVE_ENERGY_TOLERANCE = 1e-2
+# The side of the smallest sheet that steps on the packed grid on the CPU (the springs, dashpots,
+# curvature bending and drag's faces in the SIMD pass), against CUDA's gather.
+PACKED_SIDE = math.isqrt(PACKED_PARTICLE_MINIMUM - 1) + 1
 
 
 def frames_of(folder: Path) -> list[dict]:
@@ -46,14 +53,15 @@ def skip_without(arch: str, result: subprocess.CompletedProcess) -> None:
         pytest.skip(result.stderr.strip())
 
 
-@pytest.mark.parametrize("arch, integrator, position_tolerance, energy_tolerance", [
-    ("vulkan", "symplectic", POSITION_TOLERANCE, ENERGY_TOLERANCE),
-    ("cuda", "symplectic", POSITION_TOLERANCE, ENERGY_TOLERANCE),
-    ("cuda", "implicit", SOLVE_POSITION_TOLERANCE, SOLVE_ENERGY_TOLERANCE),
+@pytest.mark.parametrize("arch, integrator, side, position_tolerance, energy_tolerance", [
+    ("vulkan", "symplectic", 12, POSITION_TOLERANCE, ENERGY_TOLERANCE),
+    ("cuda", "symplectic", 12, POSITION_TOLERANCE, ENERGY_TOLERANCE),
+    ("cuda", "symplectic", PACKED_SIDE, POSITION_TOLERANCE, ENERGY_TOLERANCE),
+    ("cuda", "implicit", 12, SOLVE_POSITION_TOLERANCE, SOLVE_ENERGY_TOLERANCE),
 ])
-def test_cpu_and_gpu_trajectories_agree(arch, integrator, position_tolerance, energy_tolerance,
-                                        tmp_path):
-    overrides = ["cloth.resolution=[12,12]", f"simulation.integrator={integrator}"]
+def test_cpu_and_gpu_trajectories_agree(arch, integrator, side, position_tolerance,
+                                        energy_tolerance, tmp_path):
+    overrides = [f"cloth.resolution=[{side},{side}]", f"simulation.integrator={integrator}"]
     result = run_on(arch, overrides, tmp_path / arch)  # first: where it skips, nothing else runs
     skip_without(arch, result)
     assert result.returncode == 0, result.stderr

@@ -11,9 +11,10 @@ force is a linear stencil on the grid (bending's constant Hessian) can act in th
 (``Effect.allocate_lanes``: its coefficients per lane and slot in a packed table,
 ``GridStencil.packed_table``) instead of being gathered particle by particle afterwards.
 
-The simulation chooses it (``packed_grid_for``) when the cloth is a grid of at least
+The simulation chooses it (``packed_grid_for``) on the CPU when the cloth is a grid of at least
 ``PACKED_PARTICLE_MINIMUM`` particles and the integrator takes one force evaluation per step;
-otherwise springs are gathered through the CSR lists one particle at a time.
+otherwise (and on every GPU arch) springs are gathered through the CSR lists one particle at a
+time.
 """
 
 import numpy as np
@@ -22,6 +23,7 @@ import taichi as ti
 from taichi_cloth.cloth.topology import grid_triangles
 from taichi_cloth.effects.aerodynamics import plate_pressure
 from taichi_cloth.physics.grid_stencil import SIMD_LANES
+from taichi_cloth.runtime import runs_on_cpu
 
 PACKED_PARTICLE_MINIMUM = 1024  # below it the CSR gather is as fast and compiles in a blink
 
@@ -382,8 +384,13 @@ class PackedGrid:
 
 def packed_grid_for(model, wanted: bool, effects=()) -> PackedGrid | None:
     """A ``PackedGrid`` (with ``effects`` that can act in its lanes) when ``wanted`` (an
-    integrator with one force evaluation per step) and the cloth is a grid of at least
-    ``PACKED_PARTICLE_MINIMUM`` particles; None otherwise."""
-    if wanted and model.grid is not None and model.particle_count >= PACKED_PARTICLE_MINIMUM:
+    integrator with one force evaluation per step), the runtime is on the CPU and the cloth is
+    a grid of at least ``PACKED_PARTICLE_MINIMUM`` particles; None otherwise. The lanes are the
+    CPU's SIMD registers: on a GPU each thread would step a group of 16 particles (16 times
+    fewer threads than particles), and CUDA compiled the pass with bending, drag and contact
+    for over 5.5 minutes on an H100 (docs/performance.md), where the gather's one thread per
+    particle is what the GPU runs well."""
+    if wanted and runs_on_cpu() and model.grid is not None \
+            and model.particle_count >= PACKED_PARTICLE_MINIMUM:
         return PackedGrid(model, effects)
     return None
