@@ -240,13 +240,20 @@ class CapsuleContact(Effect):
         a, b = self.capsule_a[i_c], self.capsule_b[i_c]
         velocity_a, velocity_b = self.capsule_velocity_a[i_c], self.capsule_velocity_b[i_c]
         radius = self.capsule_radius[i_c] + self.model.real(self.margin)
-        s = closest_on_segment(position, a, b)
-        offset = position - (a + s * (b - a))
+        s, offset = self._axis_offset(i_c, position)
         distance = offset.norm()
         normal = offset / ti.max(distance, 1e-30)
         axis = (b - a) / ti.max((b - a).norm(), 1e-30)
         surface_velocity = velocity_a + s * (velocity_b - velocity_a)
         return radius - distance, normal, distance, s, axis, surface_velocity
+
+    @ti.func
+    def _axis_offset(self, i_c, position):
+        """(s, position − y): the segment parameter of the point y of capsule i_c's axis closest
+        to ``position`` [m], and the offset [m] from y to it."""
+        a, b = self.capsule_a[i_c], self.capsule_b[i_c]
+        s = closest_on_segment(position, a, b)
+        return s, position - (a + s * (b - a))
 
     @ti.func
     def near(self, i_c, position):
@@ -282,8 +289,7 @@ class CapsuleContact(Effect):
         touches = False
         i_c = self._next_capsule(0, mask)
         while i_c < self.capsule_count:
-            a, b = self.capsule_a[i_c], self.capsule_b[i_c]
-            offset = position - (a + closest_on_segment(position, a, b) * (b - a))
+            offset = self._axis_offset(i_c, position)[1]
             reach = real(1.0 + 1e-4) * (self.capsule_radius[i_c] + real(self.margin))
             if offset.norm_sqr() < reach * reach:
                 touches = True
