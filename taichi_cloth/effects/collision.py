@@ -249,8 +249,7 @@ class CapsuleContact(Effect):
 
     @ti.func
     def _axis_offset(self, i_c, position):
-        """(s, position − y): the segment parameter of the point y of capsule i_c's axis closest
-        to ``position`` [m], and the offset [m] from y to it."""
+        """(s, position − y [m]): y the point of capsule i_c's axis closest to ``position``."""
         a, b = self.capsule_a[i_c], self.capsule_b[i_c]
         s = closest_on_segment(position, a, b)
         return s, position - (a + s * (b - a))
@@ -280,11 +279,10 @@ class CapsuleContact(Effect):
 
     @ti.func
     def _may_touch(self, position, mask):
-        """Whether ``position`` [m] lies within (1 + 10⁻⁴)·(r + margin) of the axis of a
-        capsule whose bit is set in ``mask``: a squared distance to the segment, no root. Where
-        it does not, ``_contact_force`` finds depth ≤ 0 at every capsule and gives 0, so a
-        sample skips it (and its velocity) with the same result. On a dancing skirt ~1 in 200
-        of the samples whose mask holds a capsule touches it (docs/performance.md)."""
+        """Whether ``position`` [m] is within (1 + 10⁻⁴)·(r + margin) of the axis of a capsule
+        in ``mask`` (a squared distance, no root). Where not, ``_contact_force`` finds depth ≤ 0
+        at every capsule and gives 0: a sample skips it (and its velocity) to the same result.
+        On a dancing skirt ~1 in 200 samples near a capsule touches one (docs/performance.md)."""
         real = self.model.real
         touches = False
         i_c = self._next_capsule(0, mask)
