@@ -131,13 +131,20 @@ def test_masks_kept_while_the_sheet_slides_across_the_bar_never_miss_a_contact(s
     """The near-masks are made again only when something has moved by half their slack
     (``CapsuleContact``): sliding the sheet across the bar in steps of 0.3 of the slack, some
     evaluations keep the masks and some make them again, and at every one the force is still
-    −∇ of the sampled energy, with the contacts coming and going along the way."""
+    −∇ of the sampled energy, with the contacts coming and going along the way. Only the
+    particles of samples that may touch the bar read their samples' forces (``touched_in``):
+    every sample pushing on the sheet has its particles among them, and not every particle is."""
     slack = sheet.contact.mask_slack
+    corners = sheet.contact.sample_corners.to_numpy()
     kept = remade = 0
-    touching = []
+    touching, marked_counts = [], []
     for step in range(12):
         x = sheet.x + [0.0, 0.3 * slack * step - 0.1, 0.0]
         force = sheet.contact_force(x)
+        marked = sheet.contact.touched_in.to_numpy() == sheet.contact.evaluation[None]
+        pushing = np.abs(sheet.contact.sample_force.to_numpy()).sum(axis=1) > 0
+        assert marked[corners[pushing]].all()
+        marked_counts.append(int(marked.sum()))
         if sheet.contact.mask_stale[None]:
             remade += 1
         else:
@@ -147,3 +154,4 @@ def test_masks_kept_while_the_sheet_slides_across_the_bar_never_miss_a_contact(s
         touching.append(int(np.count_nonzero(np.abs(force).sum(axis=1))))
     assert kept >= 3 and remade >= 3
     assert max(touching) > 0 and min(touching) < max(touching)
+    assert min(marked_counts) < max(marked_counts) and min(marked_counts) < len(sheet.x)

@@ -21,13 +21,12 @@ import numpy as np
 import taichi as ti
 
 from taichi_cloth.effects.base import Effect, EffectContext
+from taichi_cloth.effects.near_masks import NearMasks
 from taichi_cloth.effects.penalty import (PenaltySettings, capsule_penetration_depths,
                                           closest_on_segment, penalty_blocks, penalty_force)
 from taichi_cloth.gather import incidence_lists
 from taichi_cloth.settings import setting
 
-MASK_BITS = 31  # capsules a particle's near-mask can hold (more: every sample tests them all)
-MASK_SLACK = 0.5  # of the longest rest edge: how far the masks reach beyond what they must hold
 
 
 @dataclass(frozen=True)
@@ -39,24 +38,15 @@ class CollisionSettings(PenaltySettings):
 
 
 @ti.data_oriented
-class CapsuleContact(Effect):
+class CapsuleContact(NearMasks, Effect):
     """Penalty contact of every particle against the body's capsules.
 
     Capsule c has endpoints ``control.capsule_track`` points 2c (a) and 2c + 1 (b) and radius
     ``control.capsule_radius[c]`` [m]; ``margin`` [m] is the cloth's thickness kept off the surface.
     ``prepare`` poses the capsules once per force evaluation; a particle then first tests each
     capsule's bounding sphere (centre (a + b)/2, radius |b − a|/2 + r + margin), and only
-    particles inside it pay for the exact closest-point test.
-
-    With surface samples each particle and each sample also keeps a near-mask, the capsules
-    within r + margin + a slack s of it (its distance to the axis segment), and only those are
-    tested for it. The masks are made again only when a particle or a capsule end has moved by
-    more than s/2 since they were made (a sample, a mean of particles, moves no farther than
-    they do): until then a distance to a segment has changed by less than s, so every capsule
-    that a particle or a sample can touch is still in its mask. A bit too many changes nothing
-    (the sphere and the exact test decide): the forces are the same, bit for bit, however old
-    the masks. On a dancing skirt most samples hang clear of every capsule and skip the test,
-    and a point walks only the set bits of its mask (``_next_capsule``), not every capsule.
+    particles inside it pay for the exact closest-point test. With surface samples, the
+    near-masks of ``NearMasks`` say which capsules a particle or a sample may touch.
     """
 
     name = "collision"
@@ -113,18 +103,8 @@ class CapsuleContact(Effect):
         self.stiffness_factor = float(np.max(1.0 + share[free] / mass[free])) if free.any() else 1.0
         self.sample_count = len(corners)
         rest = np.linalg.norm(np.diff(model.garment.positions[edges], axis=1), axis=2)
-        self.masked = self.capsule_count <= MASK_BITS
-        self.mask_slack = MASK_SLACK * float(rest.max(initial=0.0))  # m
+        self.allocate_masks(float(rest.max(initial=0.0)))
         real = model.real
-        self.particle_near = ti.field(ti.i32, model.particle_count)
-        self.sample_near = ti.field(ti.i32, self.sample_count)
-        # where the particles and the capsules' ends were when the masks were made [m]; stale:
-        # the masks are made again at this evaluation
-        self.mask_x = ti.Vector.field(3, real, model.particle_count)
-        self.mask_a = ti.Vector.field(3, real, self.capsule_count)
-        self.mask_b = ti.Vector.field(3, real, self.capsule_count)
-        self.mask_stale = ti.field(ti.i32, ())
-        self.mask_sphere_sq = ti.field(real, self.capsule_count)  # bounding sphere + slack, m²
         self.sample_corners = ti.Vector.field(3, ti.i32, self.sample_count)
         self.sample_weights = ti.Vector.field(3, real, self.sample_count)
         self.sample_mass = ti.field(real, self.sample_count)
@@ -140,8 +120,7 @@ class CapsuleContact(Effect):
         if self.surface:
             real = self.model.numpy_real
             corners, weights, sample_mass, start, item, item_weight = self._sample_tables
-            far = np.full((self.model.particle_count, 3), np.inf)  # the first check remakes them
-            pairs += [(self.mask_x, far.astype(real)),
+            pairs += [*self.mask_uploads(),
                       (self.sample_corners, corners),
                       (self.sample_weights, weights.astype(real)),
                       (self.sample_mass, sample_mass.astype(real)),
@@ -159,6 +138,7 @@ class CapsuleContact(Effect):
         if ti.static(self.surface):
             if ti.static(self.masked):
                 self._refresh_masks(x)
+            self.evaluation[None] += 1  # (``NearMasks``)
             for i_s in range(self.sample_count):
                 mask = self._mask(i_s, True)
                 force = ti.Vector.zero(self.model.real, 3)
@@ -167,49 +147,8 @@ class CapsuleContact(Effect):
                     if self._may_touch(position, mask):
                         force = self._contact_force(self.sample_mass[i_s], position,
                                                     self._sample_point(v, i_s), mask)
+                        self._mark_touched(i_s)
                 self.sample_force[i_s] = force
-
-    @ti.func
-    def _refresh_masks(self, x):
-        """Every particle's and sample's near-mask made again at x [m] when a particle or a
-        capsule end has moved by more than half the slack since the last time (class
-        docstring)."""
-        real = self.model.real
-        half_slack_sq = real(0.25 * self.mask_slack ** 2)
-        ti.loop_config(serialize=True)
-        for _ in range(1):
-            self.mask_stale[None] = 0
-        for i_p in range(self.model.particle_count):
-            if (x[i_p] - self.mask_x[i_p]).norm_sqr() > half_slack_sq:
-                ti.atomic_max(self.mask_stale[None], 1)
-        for i_c in range(self.capsule_count):
-            if (self.capsule_a[i_c] - self.mask_a[i_c]).norm_sqr() > half_slack_sq \
-                    or (self.capsule_b[i_c] - self.mask_b[i_c]).norm_sqr() > half_slack_sq:
-                ti.atomic_max(self.mask_stale[None], 1)
-            self.mask_sphere_sq[i_c] = (ti.sqrt(self.capsule_reach_sq[i_c])
-                                        + real(self.mask_slack)) ** 2
-        for i_p in range(self.model.particle_count):
-            if self.mask_stale[None]:
-                self.particle_near[i_p] = self._near_mask(x[i_p])
-                self.mask_x[i_p] = x[i_p]
-        for i_s in range(self.sample_count):
-            if self.mask_stale[None]:
-                self.sample_near[i_s] = self._near_mask(self._sample_point(x, i_s))
-        for i_c in range(self.capsule_count):
-            if self.mask_stale[None]:
-                self.mask_a[i_c], self.mask_b[i_c] = self.capsule_a[i_c], self.capsule_b[i_c]
-
-    @ti.func
-    def _near_mask(self, position):
-        """Bit c set when ``position`` [m] is within r_c + margin + the slack of capsule c's
-        axis segment (first culled by the capsule's bounding sphere grown by the slack)."""
-        mask = 0
-        for i_c in range(self.capsule_count):
-            if (position - self.capsule_center[i_c]).norm_sqr() < self.mask_sphere_sq[i_c]:
-                depth = self.probe(i_c, position)[0]
-                if depth > -self.model.real(self.mask_slack):
-                    mask |= 1 << i_c
-        return mask
 
     @ti.func
     def _sample_point(self, values, i_s):
@@ -261,42 +200,6 @@ class CapsuleContact(Effect):
         return (position - self.capsule_center[i_c]).norm_sqr() < self.capsule_reach_sq[i_c]
 
     @ti.func
-    def _next_capsule(self, i_c, mask):
-        """The first capsule from i_c on whose bit is set in ``mask`` (with the masks off:
-        i_c), or ``capsule_count`` when there is none: a point whose mask is 0 tests no
-        capsule, one with a few bits only those."""
-        found = i_c
-        if ti.static(self.masked):
-            while found < self.capsule_count:
-                rest = mask >> found
-                if rest == 0:
-                    found = self.capsule_count
-                elif rest & 1:
-                    break
-                else:
-                    found += 1
-        return found
-
-    @ti.func
-    def _may_touch(self, position, mask):
-        """Whether ``position`` [m] is within (1 + 10⁻⁴)·(r + margin) of the axis of a capsule
-        in ``mask`` (a squared distance, no root). Where not, ``_contact_force`` finds depth ≤ 0
-        at every capsule and gives 0: a sample skips it (and its velocity) to the same result.
-        On a dancing skirt ~1 in 200 samples near a capsule touches one (docs/performance.md)."""
-        real = self.model.real
-        touches = False
-        i_c = self._next_capsule(0, mask)
-        while i_c < self.capsule_count:
-            offset = self._axis_offset(i_c, position)[1]
-            reach = real(1.0 + 1e-4) * (self.capsule_radius[i_c] + real(self.margin))
-            if offset.norm_sqr() < reach * reach:
-                touches = True
-                i_c = self.capsule_count
-            else:
-                i_c = self._next_capsule(i_c + 1, mask)
-        return touches
-
-    @ti.func
     def _contact_force(self, mass, position, velocity, mask):
         """The penalty force [N] on a point of ``mass`` at ``position`` with ``velocity``,
         summed over the capsules whose bit is set in ``mask`` (each first culled by its
@@ -316,25 +219,19 @@ class CapsuleContact(Effect):
         return f
 
     @ti.func
-    def _mask(self, i, sample: ti.template()):
-        """The near-mask of particle i (of sample i, with ``sample``); every capsule where
-        there are no masks (no surface samples, or more than ``MASK_BITS`` capsules)."""
-        mask = -1
-        if ti.static(self.masked):
-            if ti.static(sample):
-                mask = self.sample_near[i]
-            else:
-                mask = self.particle_near[i]
-        return mask
-
-    @ti.func
     def force(self, model, x, v, i_p, t):
-        """The particle's own contact and, with ``surface``, w_a·F_s of each of its samples."""
-        f = self._contact_force(model.particle_mass[i_p], x[i_p], v[i_p], self._mask(i_p, False))
+        """The particle's own contact and, with ``surface``, w_a·F_s of each of its samples
+        (none where no sample of it may touch a capsule at this evaluation: each F_s is 0)."""
+        mask = self._mask(i_p, False)
+        if ti.static(self.masked):
+            if not self._may_touch(x[i_p], mask):  # (as for a sample; none for a mask of 0)
+                mask = 0
+        f = self._contact_force(model.particle_mass[i_p], x[i_p], v[i_p], mask)
         if ti.static(self.surface):
-            for k in range(self.particle_sample_start[i_p], self.particle_sample_start[i_p + 1]):
-                i_s = self.particle_sample[k]
-                f += self.particle_sample_weight[k] * self.sample_force[i_s]
+            if self._sample_may_touch(i_p):
+                for k in range(self.particle_sample_start[i_p],
+                               self.particle_sample_start[i_p + 1]):
+                    f += self.particle_sample_weight[k] * self.sample_force[self.particle_sample[k]]
         return f
 
     @ti.func
@@ -345,7 +242,10 @@ class CapsuleContact(Effect):
         stiffness_block, damping_block = self._contact_blocks(
             model.particle_mass[i_p], x[i_p], v[i_p], self._mask(i_p, False), definite)
         if ti.static(self.surface):
-            for k in range(self.particle_sample_start[i_p], self.particle_sample_start[i_p + 1]):
+            first, end = self.particle_sample_start[i_p], self.particle_sample_start[i_p + 1]
+            if not self._sample_may_touch(i_p):
+                end = first
+            for k in range(first, end):
                 i_s = self.particle_sample[k]
                 mask = self._mask(i_s, True)
                 if mask != 0:  # a sample that cannot touch a capsule has no blocks

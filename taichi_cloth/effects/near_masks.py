@@ -1,0 +1,160 @@
+"""The broad phase of capsule contact (``effects/collision.py``, which mixes this class in): each
+particle and surface sample keeps a near-mask, the capsules within r + margin + a slack s of it
+(its distance to the axis segment), and only those are tested for it. The masks are made again
+only when a particle or a capsule end has moved by more than s/2 since they were made (a sample,
+a mean of particles, moves no farther than they do): until then a distance to a segment has
+changed by less than s, so every capsule that a particle or a sample can touch is still in its
+mask. A bit too many changes nothing (the sphere and the exact test decide): the forces are the
+same, bit for bit, however old the masks. On a dancing skirt most samples hang clear of every
+capsule and skip the test, and a point walks only the set bits of its mask (``_next_capsule``).
+
+A point near a capsule first tests its squared distance to the axes of its mask
+(``_may_touch``); each evaluation marks the particles of the samples that pass it
+(``touched_in``), and a particle with none reads none of its samples' forces (all 0): on the
+dancing ``hula`` a few dozen of 1,792 particles (docs/performance.md).
+
+The host class provides ``model``, ``capsule_count``, the posed capsules (``capsule_a``,
+``capsule_b``, ``capsule_center``, ``capsule_reach_sq``, ``capsule_radius``), ``margin``,
+``probe``, ``_axis_offset``, ``sample_count``, ``sample_corners`` and ``_sample_point``.
+"""
+
+import numpy as np
+import taichi as ti
+
+MASK_BITS = 31  # capsules a particle's near-mask can hold (more: every sample tests them all)
+MASK_SLACK = 0.5  # of the longest rest edge: how far the masks reach beyond what they must hold
+
+
+@ti.data_oriented
+class NearMasks:
+    """Near-masks of a cloth's particles and surface samples against posed capsules, and the
+    particles whose samples may touch one (module docstring)."""
+
+    def allocate_masks(self, longest_rest_edge: float) -> None:
+        """The masks (when there are at most ``MASK_BITS`` capsules: ``masked``), with a slack of
+        ``MASK_SLACK`` times the longest rest edge [m], and the evaluations' marks."""
+        model, real = self.model, self.model.real
+        self.masked = self.capsule_count <= MASK_BITS
+        self.mask_slack = MASK_SLACK * longest_rest_edge  # m
+        self.particle_near = ti.field(ti.i32, model.particle_count)
+        self.sample_near = ti.field(ti.i32, self.sample_count)
+        # where the particles and the capsules' ends were when the masks were made [m]; stale:
+        # the masks are made again at this evaluation
+        self.mask_x = ti.Vector.field(3, real, model.particle_count)
+        self.mask_a = ti.Vector.field(3, real, self.capsule_count)
+        self.mask_b = ti.Vector.field(3, real, self.capsule_count)
+        self.mask_stale = ti.field(ti.i32, ())
+        self.mask_sphere_sq = ti.field(real, self.capsule_count)  # bounding sphere + slack, m²
+        # each evaluation's number, and per particle the last one in which a sample of its
+        # passed ``_may_touch``
+        self.evaluation = ti.field(ti.i32, ())
+        self.touched_in = ti.field(ti.i32, model.particle_count)
+
+    def mask_uploads(self) -> list:
+        """(field, values) for the model's ``uploads``: positions far away, so that the first
+        evaluation makes the masks."""
+        far = np.full((self.model.particle_count, 3), np.inf)
+        return [(self.mask_x, far.astype(self.model.numpy_real))]
+
+    @ti.func
+    def _refresh_masks(self, x):
+        """Every particle's and sample's near-mask made again at x [m] when a particle or a
+        capsule end has moved by more than half the slack since the last time (class
+        docstring)."""
+        real = self.model.real
+        half_slack_sq = real(0.25 * self.mask_slack ** 2)
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            self.mask_stale[None] = 0
+        for i_p in range(self.model.particle_count):
+            if (x[i_p] - self.mask_x[i_p]).norm_sqr() > half_slack_sq:
+                ti.atomic_max(self.mask_stale[None], 1)
+        for i_c in range(self.capsule_count):
+            if (self.capsule_a[i_c] - self.mask_a[i_c]).norm_sqr() > half_slack_sq \
+                    or (self.capsule_b[i_c] - self.mask_b[i_c]).norm_sqr() > half_slack_sq:
+                ti.atomic_max(self.mask_stale[None], 1)
+            self.mask_sphere_sq[i_c] = (ti.sqrt(self.capsule_reach_sq[i_c])
+                                        + real(self.mask_slack)) ** 2
+        for i_p in range(self.model.particle_count):
+            if self.mask_stale[None]:
+                self.particle_near[i_p] = self._near_mask(x[i_p])
+                self.mask_x[i_p] = x[i_p]
+        for i_s in range(self.sample_count):
+            if self.mask_stale[None]:
+                self.sample_near[i_s] = self._near_mask(self._sample_point(x, i_s))
+        for i_c in range(self.capsule_count):
+            if self.mask_stale[None]:
+                self.mask_a[i_c], self.mask_b[i_c] = self.capsule_a[i_c], self.capsule_b[i_c]
+
+    @ti.func
+    def _near_mask(self, position):
+        """Bit c set when ``position`` [m] is within r_c + margin + the slack of capsule c's
+        axis segment (first culled by the capsule's bounding sphere grown by the slack)."""
+        mask = 0
+        for i_c in range(self.capsule_count):
+            if (position - self.capsule_center[i_c]).norm_sqr() < self.mask_sphere_sq[i_c]:
+                depth = self.probe(i_c, position)[0]
+                if depth > -self.model.real(self.mask_slack):
+                    mask |= 1 << i_c
+        return mask
+
+    @ti.func
+    def _next_capsule(self, i_c, mask):
+        """The first capsule from i_c on whose bit is set in ``mask`` (with the masks off:
+        i_c), or ``capsule_count`` when there is none: a point whose mask is 0 tests no
+        capsule, one with a few bits only those."""
+        found = i_c
+        if ti.static(self.masked):
+            while found < self.capsule_count:
+                rest = mask >> found
+                if rest == 0:
+                    found = self.capsule_count
+                elif rest & 1:
+                    break
+                else:
+                    found += 1
+        return found
+
+    @ti.func
+    def _may_touch(self, position, mask):
+        """Whether ``position`` [m] is within (1 + 10⁻⁴)·(r + margin) of the axis of a capsule
+        in ``mask`` (a squared distance, no root). Where not, ``_contact_force`` finds depth ≤ 0
+        at every capsule and gives 0: a sample skips it (and its velocity) to the same result.
+        On a dancing skirt ~1 in 200 samples near a capsule touches one (docs/performance.md)."""
+        real = self.model.real
+        touches = False
+        i_c = self._next_capsule(0, mask)
+        while i_c < self.capsule_count:
+            offset = self._axis_offset(i_c, position)[1]
+            reach = real(1.0 + 1e-4) * (self.capsule_radius[i_c] + real(self.margin))
+            if offset.norm_sqr() < reach * reach:
+                touches = True
+                i_c = self.capsule_count
+            else:
+                i_c = self._next_capsule(i_c + 1, mask)
+        return touches
+
+    @ti.func
+    def _mask(self, i, sample: ti.template()):
+        """The near-mask of particle i (of sample i, with ``sample``); every capsule where
+        there are no masks (no surface samples, or more than ``MASK_BITS`` capsules)."""
+        mask = -1
+        if ti.static(self.masked):
+            if ti.static(sample):
+                mask = self.sample_near[i]
+            else:
+                mask = self.particle_near[i]
+        return mask
+
+    @ti.func
+    def _sample_may_touch(self, i_p):
+        """Whether a surface sample of particle i_p may touch a capsule at the evaluation that
+        ``prepare`` made last (on a dancing skirt a few dozen of its particles)."""
+        return self.touched_in[i_p] == self.evaluation[None]
+
+    @ti.func
+    def _mark_touched(self, i_s):
+        """Sample i_s may touch a capsule at this evaluation: so may its particles' samples
+        (each writes the same value, whichever thread does)."""
+        for a in ti.static(range(3)):
+            self.touched_in[self.sample_corners[i_s][a]] = self.evaluation[None]
