@@ -222,11 +222,8 @@ class CapsuleContact(NearMasks, Effect):
     def force(self, model, x, v, i_p, t):
         """The particle's own contact and, with ``surface``, w_a·F_s of each of its samples
         (none where no sample of it may touch a capsule at this evaluation: each F_s is 0)."""
-        mask = self._mask(i_p, False)
-        if ti.static(self.masked):
-            if not self._may_touch(x[i_p], mask):  # (as for a sample; none for a mask of 0)
-                mask = 0
-        f = self._contact_force(model.particle_mass[i_p], x[i_p], v[i_p], mask)
+        f = self._contact_force(model.particle_mass[i_p], x[i_p], v[i_p],
+                                self._particle_mask(x, i_p))
         if ti.static(self.surface):
             if self._sample_may_touch(i_p):
                 for k in range(self.particle_sample_start[i_p],
@@ -240,11 +237,11 @@ class CapsuleContact(NearMasks, Effect):
         ``surface``, w_a² times its samples' blocks (the couplings between a sample's particles
         left out: module docstring)."""
         stiffness_block, damping_block = self._contact_blocks(
-            model.particle_mass[i_p], x[i_p], v[i_p], self._mask(i_p, False), definite)
+            model.particle_mass[i_p], x[i_p], v[i_p], self._particle_mask(x, i_p), definite)
         if ti.static(self.surface):
             first, end = self.particle_sample_start[i_p], self.particle_sample_start[i_p + 1]
             if not self._sample_may_touch(i_p):
-                end = first
+                end = first  # no sample of it may touch: none is walked
             for k in range(first, end):
                 i_s = self.particle_sample[k]
                 mask = self._mask(i_s, True)

@@ -9,9 +9,10 @@ same, bit for bit, however old the masks. On a dancing skirt most samples hang c
 capsule and skip the test, and a point walks only the set bits of its mask (``_next_capsule``).
 
 A point near a capsule first tests its squared distance to the axes of its mask
-(``_may_touch``); each evaluation marks the particles of the samples that pass it
-(``touched_in``), and a particle with none reads none of its samples' forces (all 0): on the
-dancing ``hula`` a few dozen of 1,792 particles (docs/performance.md).
+(``_may_touch``; a particle's own contact through ``_particle_mask``); each evaluation marks the
+particles of the samples that pass it (``touched_in``), and a particle with none reads none of
+its samples' forces (all 0): on the dancing ``hula`` a few dozen of 1,792 particles
+(docs/performance.md).
 
 The host class provides ``model``, ``capsule_count``, the posed capsules (``capsule_a``,
 ``capsule_b``, ``capsule_center``, ``capsule_reach_sq``, ``capsule_radius``), ``margin``,
@@ -144,6 +145,16 @@ class NearMasks:
                 mask = self.sample_near[i]
             else:
                 mask = self.particle_near[i]
+        return mask
+
+    @ti.func
+    def _particle_mask(self, x, i_p):
+        """Particle i_p's near-mask, or 0 where it fails ``_may_touch`` at x [m] (its own
+        contact force and blocks are then 0 at every capsule)."""
+        mask = self._mask(i_p, False)
+        if ti.static(self.masked):
+            if not self._may_touch(x[i_p], mask):  # (false for a mask of 0)
+                mask = 0
         return mask
 
     @ti.func
