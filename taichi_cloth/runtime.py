@@ -17,6 +17,11 @@ ARCH_NAMES = tuple(ARCHES)  # --arch and simulation.arch
 # Off on the CPU: the kernels compile 2-3 times faster and step as fast, within the noise
 # (docs/performance.md, "Where a compile's time goes"). On for the GPU archs, unmeasured there.
 CFG_OPTIMIZATION_ON_CPU = False
+# Taichi's own optimisation level, set here so that ``TI_OPT_LEVEL`` in the environment (which
+# ``ti.init`` reads) cannot change it: at 0 Taichi 1.7.4 compiles a serial loop that reads and
+# writes a counter in a 0-d field as if the counter never changed (self-collision's candidate
+# list kept 1 pair of 919; docs/performance.md), wrong results without an error.
+OPT_LEVEL = 1
 
 
 def taichi_started() -> bool:
@@ -33,7 +38,9 @@ def start_taichi(arch: str = "cpu", kernel_profiler: bool = False,
     if taichi_started():
         return
     ast_transformer_utils.ASTTransformerContext.get_pos_info = short_position_info
-    options = {} if threads is None else {"cpu_max_num_threads": threads}
+    options = {"opt_level": OPT_LEVEL}
+    if threads is not None:
+        options["cpu_max_num_threads"] = threads
     if arch == "cpu":
         options["cfg_optimization"] = CFG_OPTIMIZATION_ON_CPU
     with contextlib.redirect_stdout(io.StringIO()):  # ti.init prints "Starting on arch=..."
