@@ -140,14 +140,12 @@ class CapsuleContact(NearMasks, Effect):
                 self._refresh_masks(x)
             self.evaluation[None] += 1  # (``NearMasks``)
             for i_s in range(self.sample_count):
-                mask = self._mask(i_s, True)
+                position, mask = self._sample_mask(x, i_s)
                 force = ti.Vector.zero(self.model.real, 3)
                 if mask != 0:
-                    position = self._sample_point(x, i_s)
-                    if self._may_touch(position, mask):
-                        force = self._contact_force(self.sample_mass[i_s], position,
-                                                    self._sample_point(v, i_s), mask)
-                        self._mark_touched(i_s)
+                    force = self._contact_force(self.sample_mass[i_s], position,
+                                                self._sample_point(v, i_s), mask)
+                    self._mark_touched(i_s)
                 self.sample_force[i_s] = force
 
     @ti.func
@@ -244,16 +242,14 @@ class CapsuleContact(NearMasks, Effect):
                 end = first  # no sample of it may touch: none is walked
             for k in range(first, end):
                 i_s = self.particle_sample[k]
-                mask = self._mask(i_s, True)
+                position, mask = self._sample_mask(x, i_s)
                 if mask != 0:  # a sample that cannot touch a capsule has no blocks
-                    position = self._sample_point(x, i_s)
-                    if self._may_touch(position, mask):
-                        weight = self.particle_sample_weight[k]
-                        sample_stiffness, sample_damping = self._contact_blocks(
-                            self.sample_mass[i_s], position, self._sample_point(v, i_s), mask,
-                            definite)
-                        stiffness_block += weight * weight * sample_stiffness
-                        damping_block += weight * weight * sample_damping
+                    weight = self.particle_sample_weight[k]
+                    sample_stiffness, sample_damping = self._contact_blocks(
+                        self.sample_mass[i_s], position, self._sample_point(v, i_s), mask,
+                        definite)
+                    stiffness_block += weight * weight * sample_stiffness
+                    damping_block += weight * weight * sample_damping
         return stiffness_block, damping_block
 
     @ti.func

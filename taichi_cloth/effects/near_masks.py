@@ -9,7 +9,7 @@ same, bit for bit, however old the masks. On a dancing skirt most samples hang c
 capsule and skip the test, and a point walks only the set bits of its mask (``_next_capsule``).
 
 A point near a capsule first tests its squared distance to the axes of its mask
-(``_may_touch``; a particle's own contact through ``_particle_mask``); each evaluation marks the
+(``_may_touch``, through ``_particle_mask`` and ``_sample_mask``); each evaluation marks the
 particles of the samples that pass it (``touched_in``), and a particle with none reads none of
 its samples' forces (all 0): on the dancing ``hula`` a few dozen of 1,792 particles
 (docs/performance.md).
@@ -158,6 +158,18 @@ class NearMasks:
         return mask
 
     @ti.func
+    def _sample_mask(self, x, i_s):
+        """(sample i_s's point at x [m], its near-mask, or 0 where the point fails
+        ``_may_touch``): the point is formed only for a sample with a capsule near (0 else)."""
+        mask = self._mask(i_s, True)
+        position = ti.Vector.zero(self.model.real, 3)
+        if mask != 0:
+            position = self._sample_point(x, i_s)
+            if not self._may_touch(position, mask):
+                mask = 0
+        return position, mask
+
+    @ti.func
     def _sample_may_touch(self, i_p):
         """Whether a surface sample of particle i_p may touch a capsule at the evaluation that
         ``prepare`` made last (on a dancing skirt a few dozen of its particles)."""
@@ -165,7 +177,7 @@ class NearMasks:
 
     @ti.func
     def _mark_touched(self, i_s):
-        """Sample i_s may touch a capsule at this evaluation: so may its particles' samples
-        (each writes the same value, whichever thread does)."""
+        """Sample i_s may touch a capsule at this evaluation: its particles are marked, so that
+        they read their samples' forces (each write is the same value, whichever thread)."""
         for a in ti.static(range(3)):
             self.touched_in[self.sample_corners[i_s][a]] = self.evaluation[None]
