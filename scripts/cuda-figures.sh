@@ -8,11 +8,11 @@
 # only, so it is done first for every part at once, in parallel, with one tiny timed repeat that
 # fills Taichi's offline cache; the agreement tests run beside it. Then the parts are timed one
 # after the other, from the cache, each alone on the GPU.
-# Usage: scripts/cuda-figures.sh OUT_DIR [SCENE:SECONDS ...]
-#   (default parts: the reference sheet at 64² and 256², hula-paper:80 flag:80 drape:80
+# Usage: scripts/cuda-figures.sh OUT_DIR [SCENE:SECONDS[:INTEGRATOR,...] ...]
+#   (a part's integrators: all four unless named; default parts: the reference sheet at 64² and 256², hula-paper:80 flag:80 drape:80
 #   hula:240; each part's log lands in OUT_DIR; the warm-up's logs as warm-NAME.log)
 set -uo pipefail
-out="${1:?usage: scripts/cuda-figures.sh OUT_DIR [SCENE:SECONDS ...]}"
+out="${1:?usage: scripts/cuda-figures.sh OUT_DIR [SCENE:SECONDS[:INTEGRATOR,...] ...]}"
 shift
 mkdir -p "$out"
 python="${PYTHON:-python3}"
@@ -35,7 +35,8 @@ from taichi_cloth.runtime import start_taichi
 from taichi_cloth.studies.bench_scene import bench_scene_integrators
 start_taichi("cuda")
 assert ti.lang.impl.current_cfg().arch == ti.cuda, "no CUDA device: Taichi fell back"
-for row in bench_scene_integrators(sys.argv[1], float(sys.argv[2]), int(sys.argv[3])):
+integrators = sys.argv[4].split(",") if sys.argv[4] else None
+for row in bench_scene_integrators(sys.argv[1], float(sys.argv[2]), int(sys.argv[3]), integrators):
     print(json.dumps(row), flush=True)
 '
 sheet=("$python" -m taichi_cloth bench --arch cuda --sizes 64,256 --quiet)  # its table
@@ -46,7 +47,8 @@ part agree 280 "$python" -m pytest -q -p no:cacheprovider --basetemp=/tmp/agree 
     tests/test_backends.py -k cuda -rs > "$out/agree.summary" &
 part warm-sheet 280 "${sheet[@]}" --seconds 0.01 --repeats 1 > /dev/null &
 for item in $parts; do
-    part "warm-${item%%:*}" 280 "$python" -c "$scene_rows" "${item%%:*}" 0.01 1 > /dev/null &
+    IFS=: read -r scene limit integrators <<< "$item"
+    part "warm-$scene" 280 "$python" -c "$scene_rows" "$scene" 0.01 1 "$integrators" > /dev/null &
 done
 wait
 echo "== warm-up done after $((SECONDS - started)) s"
@@ -54,5 +56,6 @@ cat "$out/agree.summary"
 
 part sheet 120 "${sheet[@]}" --seconds 0.5 --repeats 3
 for item in $parts; do
-    part "${item%%:*}" "${item##*:}" "$python" -c "$scene_rows" "${item%%:*}" 0.3 2
+    IFS=: read -r scene limit integrators <<< "$item"
+    part "$scene" "$limit" "$python" -c "$scene_rows" "$scene" 0.3 2 "$integrators"
 done

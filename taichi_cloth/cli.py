@@ -189,7 +189,9 @@ def build_parser() -> argparse.ArgumentParser:
                        help="reference sheet sizes n (n × n particles), e.g. 32,64,128,256 "
                             "(alone: only the sizes table)")
     bench.add_argument("--integrators", metavar="LIST",
-                       help="comma list of integrators (default: symplectic,euler,rk4,implicit)")
+                       help="comma list of integrators for the sizes table and, with "
+                            "--scene, the scenes' integrator rows (default: symplectic,euler,"
+                            "rk4,implicit)")
     bench.add_argument("--scene", metavar="LIST",
                        help="comma list of scenes: every integrator, the whole run, the effect "
                             "costs and passes (default: hula, hula-paper, flag, drape, the "

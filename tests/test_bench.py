@@ -123,3 +123,34 @@ def test_a_whole_run_reports_its_self_collision_builds_only_with_self_collision(
     with_builds = report([row | {"self_collision_builds": 1040, "steps": 1200}], {})
     assert "list built 1040 times in 1200 steps" in with_builds
     assert "list built" not in report([row], {})
+
+
+def test_bench_with_scenes_takes_integrators_for_their_rows_alone(monkeypatch):
+    """`--scene S --integrators I`: S's rows for I only, and no sizes table (asked for with
+    `--sizes`); `--integrators` alone still means the sizes table. Each part is replaced by a
+    recorder of its call: this checks which parts run, not what they measure."""
+    from taichi_cloth.studies import bench
+    calls = []
+
+    def recorder(part, returns):
+        def record(*args):  # the scene or size, and the integrators asked of a scene
+            calls.append((part, args[0], *args[3:]) if part == "scene_integrators"
+                         else (part, args[0]))
+            return returns
+        return record
+    row = {"benchmark": "recorded"}
+    for function, returns in [("bench_reference", row), ("bench_numpy", row),
+                              ("bench_effects", []), ("bench_passes", row),
+                              ("bench_scene_integrators", []), ("bench_scene_run", row)]:
+        monkeypatch.setattr(bench, function, recorder(function[len("bench_"):], returns))
+    bench.run_bench(None, ["rk4"], ["drape"], 0.1, 1)
+    assert calls == [("effects", "drape"), ("passes", "drape"),
+                     ("scene_integrators", "drape", ["rk4"]), ("scene_run", "drape")]
+    calls.clear()
+    bench.run_bench([16], ["rk4"], ["drape"], 0.1, 1)
+    assert calls[:2] == [("reference", 16), ("numpy", 16)]
+    assert ("scene_integrators", "drape", ["rk4"]) in calls
+    calls.clear()
+    bench.run_bench(None, ["rk4"], None, 0.1, 1)
+    assert calls == [(part, size) for size in bench.DEFAULT_SIZES
+                     for part in ("reference", "numpy")]

@@ -231,13 +231,14 @@ def run_bench(sizes, integrators, scene_names, seconds: float, repeats: int,
     """Rows of every requested part and the scaling fits. ``sizes``/``integrators`` None and
     ``scene_names`` None: everything (the default sizes and integrators, ``REAL_SCENES``, hula's
     effects and passes, hula at 128 × 56, the implicit large step); given sizes or integrators
-    alone: the sizes table only; scenes alone: their parts only (effects and passes too).
-    threads: Taichi's CPU thread count (None: one per core)."""
+    alone: the sizes table only; scenes: their parts only (effects and passes too), with
+    integrators their integrator rows for those alone, and the sizes table only if sizes are
+    given. threads: Taichi's CPU thread count (None: one per core)."""
     start_taichi(arch, kernel_profiler=profile, threads=threads)
     everything = sizes is None and integrators is None and scene_names is None
     rows = []
     say = progress or (lambda message: None)
-    if everything or sizes is not None or integrators is not None:
+    if everything or sizes is not None or (integrators is not None and scene_names is None):
         for size in sizes or DEFAULT_SIZES:
             for name in integrators or DEFAULT_INTEGRATORS:
                 say(f"{name} {size}x{size}")
@@ -252,7 +253,7 @@ def run_bench(sizes, integrators, scene_names, seconds: float, repeats: int,
                 say(f"{name}: passes")
                 rows.append(bench_passes(name, seconds, repeats))
             say(f"{name}: every integrator")
-            rows.extend(bench_scene_integrators(name, seconds, repeats))
+            rows.extend(bench_scene_integrators(name, seconds, repeats, integrators))
             say(f"{name}: whole run")
             rows.append(bench_scene_run(name))
     if everything:

@@ -170,15 +170,16 @@ def bench_effects(scene_name: str, seconds: float, repeats: int) -> Iterator[dic
                           cost_ns_per_particle_substep=per_particle, **cost)
 
 
-def bench_scene_integrators(scene_name: str, seconds: float, repeats: int) -> Iterator[dict]:
-    """The scene with every integrator: its own at the scene's step, the others at their
-    ``dt = "auto"`` step; substeps and particle-substeps per second through ``advance_frame``
-    and the wall seconds per simulated second that gives. An integrator with no stable auto
-    step (explicit Euler without dashpots) gets a row saying so. Each row is yielded when
-    measured."""
+def bench_scene_integrators(scene_name: str, seconds: float, repeats: int,
+                            integrators: list[str] | None = None) -> Iterator[dict]:
+    """The scene with every integrator (or those named): its own at the scene's step, the
+    others at their ``dt = "auto"`` step; substeps and particle-substeps per second through
+    ``advance_frame`` and the wall seconds per simulated second that gives. An integrator with
+    no stable auto step (explicit Euler without dashpots) gets a row saying so. Each row is
+    yielded when measured."""
     from taichi_cloth.physics.integrators import INTEGRATORS
     shipped = scene_simulation(scene_name)
-    for name in INTEGRATORS:
+    for name in integrators or INTEGRATORS:
         own = name == shipped.scene.simulation.integrator
         overrides = () if own else (f"simulation.integrator={name}", "simulation.dt=auto")
         try:
