@@ -17,6 +17,10 @@ ARCH_NAMES = tuple(ARCHES)  # --arch and simulation.arch
 # Off on the CPU: the kernels compile 2-3 times faster and step as fast, within the noise
 # (docs/performance.md, "Where a compile's time goes"). On for the GPU archs, unmeasured there.
 CFG_OPTIMIZATION_ON_CPU = False
+# Taichi's other IR passes (``advanced_optimization``: common subexpressions over the whole
+# kernel, loop-invariant motion, ...) stay as Taichi's default (on): `hula`'s steps are 10-20 %
+# faster with them and its contact pass ~40 %. They take half of a compile, so the test session
+# turns them off through ``TI_ADVANCED_OPTIMIZATION`` (tests/conftest.py; docs/performance.md).
 # Taichi's own optimisation level, set here so that ``TI_OPT_LEVEL`` in the environment (which
 # ``ti.init`` reads) cannot change it: at 0 Taichi 1.7.4 compiles a serial loop that reads and
 # writes a counter in a 0-d field as if the counter never changed (self-collision's candidate
