@@ -134,7 +134,7 @@ def test_masks_kept_while_the_sheet_slides_across_the_bar_never_miss_a_contact(s
     −∇ of the sampled energy, with the contacts coming and going along the way. Only the
     particles of samples that may touch the bar read their samples' forces (``touched_in``):
     every sample pushing on the sheet has its particles among them, and not every particle is."""
-    slack = sheet.contact.mask_slack
+    slack = sheet.contact.mask_slack[None]
     corners = sheet.contact.sample_corners.to_numpy()
     kept = remade = 0
     touching, marked_counts = [], []
@@ -155,3 +155,27 @@ def test_masks_kept_while_the_sheet_slides_across_the_bar_never_miss_a_contact(s
     assert kept >= 3 and remade >= 3
     assert max(touching) > 0 and min(touching) < max(touching)
     assert min(marked_counts) < max(marked_counts) and min(marked_counts) < len(sheet.x)
+
+
+def test_the_masks_slack_follows_the_motion_and_the_force_does_not(sheet):
+    """Moved far at every evaluation, the masks are remade at each and their slack goes to its
+    most; moved a little at each, they last long and the slack is halved at the next
+    remaking. The force at the end is −∇E, and bit for bit the force with masks made afresh at
+    the most slack."""
+    contact = sheet.contact
+    largest = contact.slack_range[1]
+    for step in range(6):  # 0.6 of the most slack each time: remade at every evaluation
+        sheet.contact_force(sheet.x + [0.0, 0.6 * largest * (step % 2), 0.0])
+    assert contact.mask_slack[None] == pytest.approx(largest)
+    remade = 0
+    for step in range(200):  # 1/250 of it each time: the first remaking comes after > 64
+        x = sheet.x + [0.0, 0.004 * largest * step, 0.0]
+        force = sheet.contact_force(x)
+        remade += contact.mask_stale[None]
+    assert remade >= 2 and contact.mask_slack[None] == pytest.approx(largest / 2)
+    gradient = energy_gradient(sheet.energy, x, 1e-7)
+    np.testing.assert_allclose(force, -gradient, atol=1e-6 * max(np.abs(force).max(), 1e-3))
+    assert np.abs(force).max() > 0
+    contact.mask_x.fill(np.inf)  # remade at the next evaluation, doubling the slack again
+    np.testing.assert_array_equal(sheet.contact_force(x), force)
+    assert contact.mask_stale[None] and contact.mask_slack[None] == pytest.approx(largest)

@@ -5,8 +5,16 @@ only when a particle or a capsule end has moved by more than s/2 since they were
 a mean of particles, moves no farther than they do): until then a distance to a segment has
 changed by less than s, so every capsule that a particle or a sample can touch is still in its
 mask. A bit too many changes nothing (the sphere and the exact test decide): the forces are the
-same, bit for bit, however old the masks. On a dancing skirt most samples hang clear of every
-capsule and skip the test, and a point walks only the set bits of its mask (``_next_capsule``).
+same, bit for bit, however old the masks and whatever their slack. On a dancing skirt most
+samples hang clear of every capsule and skip the test, and a point walks only the set bits of
+its mask (``_next_capsule``).
+
+The slack follows the motion: a small one holds fewer capsules in fewer masks, a large one is
+remade less often. At each remaking it is halved when the masks lasted more than
+``REMADE_AFTER[1]`` evaluations, doubled when fewer than ``REMADE_AFTER[0]``, between
+``MASK_SLACK`` of the longest rest edge: explicit substeps of ~40 µs settle at ⅛ of it (on the
+dancing ``hula`` ~340 samples with a capsule near instead of ~2,800), implicit steps of 1/60 s,
+where the hips move ~8 mm a step, at ½ (docs/performance.md).
 
 A point near a capsule first tests its squared distance to the axes of its mask
 (``_may_touch``, through ``_particle_mask`` and ``_sample_mask``); each evaluation marks the
@@ -23,7 +31,8 @@ import numpy as np
 import taichi as ti
 
 MASK_BITS = 31  # capsules a particle's near-mask can hold (more: every sample tests them all)
-MASK_SLACK = 0.5  # of the longest rest edge: how far the masks reach beyond what they must hold
+MASK_SLACK = (1 / 16, 1 / 2)  # of the longest rest edge: the least and most slack of the masks
+REMADE_AFTER = (16, 64)  # evaluations: masks lasting fewer double the slack, more halve it
 
 
 @ti.data_oriented
@@ -32,11 +41,13 @@ class NearMasks:
     particles whose samples may touch one (module docstring)."""
 
     def allocate_masks(self, longest_rest_edge: float) -> None:
-        """The masks (when there are at most ``MASK_BITS`` capsules: ``masked``), with a slack of
-        ``MASK_SLACK`` times the longest rest edge [m], and the evaluations' marks."""
+        """The masks (when there are at most ``MASK_BITS`` capsules: ``masked``), their slack
+        between ``MASK_SLACK`` times the longest rest edge [m], and the evaluations' marks."""
         model, real = self.model, self.model.real
         self.masked = self.capsule_count <= MASK_BITS
-        self.mask_slack = MASK_SLACK * longest_rest_edge  # m
+        self.slack_range = tuple(bound * longest_rest_edge for bound in MASK_SLACK)  # m
+        self.mask_slack = ti.field(real, ())  # m: the masks' slack now
+        self.evaluations_kept = ti.field(ti.i32, ())  # since the masks were last made
         self.particle_near = ti.field(ti.i32, model.particle_count)
         self.sample_near = ti.field(ti.i32, self.sample_count)
         # where the particles and the capsules' ends were when the masks were made [m]; stale:
@@ -53,17 +64,17 @@ class NearMasks:
 
     def mask_uploads(self) -> list:
         """(field, values) for the model's ``uploads``: positions far away, so that the first
-        evaluation makes the masks."""
+        evaluation makes the masks, with the most slack."""
         far = np.full((self.model.particle_count, 3), np.inf)
-        return [(self.mask_x, far.astype(self.model.numpy_real))]
+        return [(self.mask_x, far.astype(self.model.numpy_real)),
+                (self.mask_slack, np.array(self.slack_range[1], self.model.numpy_real))]
 
     @ti.func
     def _refresh_masks(self, x):
         """Every particle's and sample's near-mask made again at x [m] when a particle or a
-        capsule end has moved by more than half the slack since the last time (class
-        docstring)."""
-        real = self.model.real
-        half_slack_sq = real(0.25 * self.mask_slack ** 2)
+        capsule end has moved by more than half the slack since the last time, the slack first
+        fitted to how long the masks lasted (module docstring)."""
+        half_slack_sq = 0.25 * self.mask_slack[None] ** 2
         ti.loop_config(serialize=True)
         for _ in range(1):
             self.mask_stale[None] = 0
@@ -74,8 +85,12 @@ class NearMasks:
             if (self.capsule_a[i_c] - self.mask_a[i_c]).norm_sqr() > half_slack_sq \
                     or (self.capsule_b[i_c] - self.mask_b[i_c]).norm_sqr() > half_slack_sq:
                 ti.atomic_max(self.mask_stale[None], 1)
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            self._fit_slack()
+        for i_c in range(self.capsule_count):
             self.mask_sphere_sq[i_c] = (ti.sqrt(self.capsule_reach_sq[i_c])
-                                        + real(self.mask_slack)) ** 2
+                                        + self.mask_slack[None]) ** 2
         for i_p in range(self.model.particle_count):
             if self.mask_stale[None]:
                 self.particle_near[i_p] = self._near_mask(x[i_p])
@@ -88,6 +103,24 @@ class NearMasks:
                 self.mask_a[i_c], self.mask_b[i_c] = self.capsule_a[i_c], self.capsule_b[i_c]
 
     @ti.func
+    def _fit_slack(self):
+        """At a remaking, the slack doubled if the masks lasted fewer than ``REMADE_AFTER[0]``
+        evaluations, halved if more than ``REMADE_AFTER[1]``, within ``slack_range``; else one
+        more evaluation kept."""
+        real = self.model.real
+        if self.mask_stale[None]:
+            kept = self.evaluations_kept[None]
+            if kept < REMADE_AFTER[0]:
+                self.mask_slack[None] = ti.min(2 * self.mask_slack[None],
+                                               real(self.slack_range[1]))
+            elif kept > REMADE_AFTER[1]:
+                self.mask_slack[None] = ti.max(0.5 * self.mask_slack[None],
+                                               real(self.slack_range[0]))
+            self.evaluations_kept[None] = 0
+        else:
+            self.evaluations_kept[None] += 1
+
+    @ti.func
     def _near_mask(self, position):
         """Bit c set when ``position`` [m] is within r_c + margin + the slack of capsule c's
         axis segment (first culled by the capsule's bounding sphere grown by the slack)."""
@@ -95,7 +128,7 @@ class NearMasks:
         for i_c in range(self.capsule_count):
             if (position - self.capsule_center[i_c]).norm_sqr() < self.mask_sphere_sq[i_c]:
                 depth = self.probe(i_c, position)[0]
-                if depth > -self.model.real(self.mask_slack):
+                if depth > -self.mask_slack[None]:
                     mask |= 1 << i_c
         return mask
 
