@@ -221,6 +221,15 @@ def test_the_summary_fits_in_100_columns():
     lines = text.removesuffix(" → /a/long/output/folder").splitlines()
     assert len(lines) <= 6 and all(len(line) <= 100 for line in lines)
     assert sum(line.count("12345.68 s") for line in lines) == 6
+    for settled, said in (({"at_rest": True, "step_halvings": 2}, "settled at 1/4 of the "),
+                          ({"at_rest": False, "step_halvings": 0, "simulated_seconds": 3.0,
+                            "mean_speed": 0.3}, "not at rest after 3.00 s"),
+                          ({"at_rest": True, "step_halvings": 0}, None)):
+        lines = summary(stats | {"settle": settled}, Path("out")).splitlines()
+        settling = [line for line in lines if line.startswith(("  settled", "  settling"))]
+        assert len(settling) == (0 if said is None else 1)
+        assert said is None or said in settling[0]
+        assert all(len(line) <= 100 for line in lines[:-1])
 
 
 def test_the_summary_says_how_to_add_self_collision_only_where_the_cloth_crossed_without_it():

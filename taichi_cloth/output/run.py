@@ -279,7 +279,8 @@ def resume_command() -> str:
 
 def summary(stats: dict, directory: Path) -> str:
     """A few lines of at most 100 columns (the folder's path aside): frames, integrator and step
-    (and how ``dt = "auto"`` chose it); strain, penetration and self-crossings (with how to add
+    (and how ``dt = "auto"`` chose it); a settling that took a smaller step or did not come to
+    rest; strain, penetration and self-crossings (with how to add
     self-collision where the cloth crossed itself without it); seconds per phase and where the
     files are."""
     seconds = ", ".join(f"{phase} {value:.2f} s" for phase, value in stats["wall_seconds"].items())
@@ -292,6 +293,13 @@ def summary(stats: dict, directory: Path) -> str:
         pins = step.get("pin_acceleration")
         lines.append(f"  dt auto: ω_max {step['omega_max']:.3g} rad/s, stability bound {bound}"
                      + (f", pins' peak acceleration {pins:.3g} m/s²" if pins else ""))
+    settled = stats.get("settle")
+    if settled and settled.get("step_halvings"):
+        lines.append(f"  settled at 1/{2 ** settled['step_halvings']} of the scene's step, "
+                     f"which the dance takes (at it the garment kept moving)")
+    elif settled and not settled["at_rest"]:
+        lines.append(f"  settling: not at rest after {settled['simulated_seconds']:.2f} s "
+                     f"(mean speed {settled['mean_speed']:.3f} m/s)")
     lines.append(f"  max strain {stats['max_strain']:.4f}, max penetration "
                  f"{stats['max_penetration'] * 1000:.2f} mm, at most "
                  f"{stats['max_self_intersections']} pairs of triangles through each other")

@@ -1,6 +1,6 @@
 """Settling: the garment comes to rest on the body, held still in its pose at t = 0, before
 the animation's frame 0 (``simulation.settle`` > 0): kinetic damping with the scene's own
-integrator and step (``settle``)."""
+integrator and step, or half of it where the scene's step keeps it moving (``settle``)."""
 
 import math
 import time
@@ -15,42 +15,78 @@ SETTLE_CHECK_INTERVAL = 1.0 / 240.0  # s of settling between two checks of the k
 # mesh a local wave after an impact on the hips (3 % strain on the 128 × 56 cotton hula) hides
 # in a mean speed already below settle_speed.
 SETTLED_STRAIN_CHANGE = 1e-3
+SETTLE_STEP_HALVINGS = 2  # times settling starts again at half the step when not at rest
 
 
 def settle(simulation, run_record: RunRecord) -> dict | None:
     """Let the garment come to rest on the body held still in its pose at t = 0, before
-    the animation (the scene's ``simulation.settle`` > 0). A skirt first gets a small ripple
-    (``cloth.garment.settling_ripple``: its cone is an unstable equilibrium); then steps
-    of the scene's own integrator and step with kinetic damping (every velocity zeroed
-    whenever the kinetic energy has passed a peak, checked every ``SETTLE_CHECK_INTERVAL``
-    or step, so that each swing ends where it is fastest, near its equilibrium) until the
-    garment is at rest: a frame's worth of steps since the last zeroing, after which the
-    free particles' mean speed is below the scene's ``settle_speed`` and the largest strain
-    changed by less than ``SETTLED_STRAIN_CHANGE`` since the last check; for at most ``settle``
-    simulated seconds. (The unbalanced force is no test of rest: in f32 the rounding of
-    positions alone gives a stiff spring a force of k·ε·|x|.) The state is then the run's
-    frame 0. Returns what it did (simulated seconds, the mean speed [m/s], whether it came
-    to rest, how many times a settling frame was redone at half the step (``retries``), and
-    for the implicit integrator its unconverged CG steps, which then do not count as the
-    run's), kept as ``simulation.settle_report``, or None when off; its compile time goes to
-    ``run_record``'s ``compile``, the rest of its wall time to ``settle``. The run then takes
-    the scene's own step again: a step halved while settling (the frame guard keeps a halved
-    step for the rest of a run) says nothing of the dance, whose frames the guard checks in
-    turn; kept, it made a silk skirt on the coarse body dance at 1/120 s instead of 1/60 s, at
-    twice the cost and with ``retries`` 0 in stats.json."""
+    the animation (the scene's ``simulation.settle`` > 0): ``settle_at`` with the scene's own
+    step; where that did not bring it to rest, again from the start at half the step (at most
+    ``SETTLE_STEP_HALVINGS`` times), and where a halved step did, the dance takes that step
+    too: a garment that keeps moving on a still body at the scene's step moves numerically (a
+    light polyester skirt at 64 × 28 under backward Euler at 1/60 s buzzed at ~0.3 m/s with
+    thousands of triangles through each other; at 1/120 s it hangs still). Where no step
+    brings it to rest (a motion of its own, such as wind), the run keeps the scene's step from
+    the last try's state. The state is then the run's frame 0. Returns what it did (simulated
+    seconds of the last try, the mean speed [m/s], whether it came to rest, how many times a
+    settling frame was redone at half the step (``retries``), the settling's step halvings and
+    the dance's step ``dt`` [s], and for the implicit integrator its unconverged CG steps,
+    which then do not count as the run's), kept as ``simulation.settle_report``, or None when
+    off; its compile time goes to ``run_record``'s ``compile``, the rest of its wall time to
+    ``settle``. A step halved by the frame guard while settling (for strain; the guard keeps a
+    halved step for the rest of a run) says nothing of the dance, whose frames the guard
+    checks in turn: kept, it made a silk skirt on the coarse body dance at 1/120 s instead of
+    1/60 s, at twice the cost and with ``retries`` 0 in stats.json."""
     settings = simulation.scene.simulation
     if settings.settle <= 0:
         return None
     started = time.perf_counter()
     record = RunRecord()
+    unconverged_before = getattr(simulation.integrator, "unconverged_steps", 0)
+    start = simulation.positions()
+    chosen = simulation.time_step
+    for halvings in range(SETTLE_STEP_HALVINGS + 1):
+        dt = chosen.dt / 2 ** halvings
+        simulated, mean_speed, at_rest = settle_at(simulation, start, dt, record)
+        if at_rest:
+            break
+    if at_rest:
+        simulation.set_time_step(dt, chosen.substeps_per_frame * 2 ** halvings)
+    else:
+        simulation.set_time_step(chosen.dt, chosen.substeps_per_frame)
+    compile_seconds = record.wall_seconds["compile"]
+    run_record.wall_seconds["compile"] += compile_seconds
+    run_record.wall_seconds["settle"] = time.perf_counter() - started - compile_seconds
+    simulation.settle_report = {"simulated_seconds": simulated, "mean_speed": mean_speed,
+                                "at_rest": bool(at_rest), "retries": record.retries,
+                                "step_halvings": halvings if at_rest else 0,
+                                "dt": simulation.time_step.dt}
+    if hasattr(simulation.integrator, "unconverged_steps"):  # settling's own, not the run's
+        simulation.settle_report["unconverged_steps"] = \
+            simulation.integrator.unconverged_steps - unconverged_before
+        simulation.integrator.unconverged_steps = unconverged_before
+    return simulation.settle_report
+
+
+def settle_at(simulation, start: np.ndarray, dt: float, record: RunRecord) -> tuple:
+    """From positions ``start`` [m] at rest, a skirt first given a small ripple
+    (``cloth.garment.settling_ripple``: its cone is an unstable equilibrium), steps of dt [s]
+    of the scene's integrator with kinetic damping (every velocity zeroed whenever the kinetic
+    energy has passed a peak, checked every ``SETTLE_CHECK_INTERVAL`` or step, so that each
+    swing ends where it is fastest, near its equilibrium) until the garment is at rest: a
+    frame's worth of steps since the last zeroing, after which the free particles' mean speed
+    is below the scene's ``settle_speed`` and the largest strain changed by less than
+    ``SETTLED_STRAIN_CHANGE`` since the last check; for at most ``settle`` simulated seconds.
+    (The unbalanced force is no test of rest: in f32 the rounding of positions alone gives a
+    stiff spring a force of k·ε·|x|.) Returns (simulated seconds, the last mean speed [m/s],
+    whether at rest); frames redone at half the step count in ``record``."""
+    settings = simulation.scene.simulation
     free = ~simulation.garment.pinned
     mass = simulation.model.host_mass
-    unconverged_before = getattr(simulation.integrator, "unconverged_steps", 0)
-    rippled = simulation.positions() + settling_ripple(simulation.garment) * free[:, None]
+    rippled = start + settling_ripple(simulation.garment) * free[:, None]
     simulation.state_in.x.from_numpy(rippled.astype(simulation.model.numpy_real))
+    simulation.state_in.v.fill(0)
     simulation.forget_crossings()
-    chosen = simulation.time_step
-    dt = chosen.dt
     steps_per_check = max(1, round(SETTLE_CHECK_INTERVAL / dt))
     checks_per_frame = max(1, round(simulation.frame_duration / (steps_per_check * dt)))
     simulation.set_time_step(dt, steps_per_check)
@@ -73,14 +109,4 @@ def settle(simulation, run_record: RunRecord) -> dict | None:
             simulation.state_in.v.fill(0)
             kinetic, since_zeroed = 0.0, 0
         previous = kinetic
-    simulation.set_time_step(chosen.dt, chosen.substeps_per_frame)
-    compile_seconds = record.wall_seconds["compile"]
-    run_record.wall_seconds["compile"] += compile_seconds
-    run_record.wall_seconds["settle"] = time.perf_counter() - started - compile_seconds
-    simulation.settle_report = {"simulated_seconds": simulated, "mean_speed": mean_speed,
-                                "at_rest": bool(at_rest), "retries": record.retries}
-    if hasattr(simulation.integrator, "unconverged_steps"):  # settling's own, not the run's
-        simulation.settle_report["unconverged_steps"] = \
-            simulation.integrator.unconverged_steps - unconverged_before
-        simulation.integrator.unconverged_steps = unconverged_before
-    return simulation.settle_report
+    return simulated, mean_speed, at_rest
