@@ -24,8 +24,9 @@ def settle(simulation, run_record: RunRecord) -> dict | None:
     step; where that did not bring it to rest, again from the start at half the step (at most
     ``SETTLE_STEP_HALVINGS`` times), and where a halved step did, the dance takes that step
     too: a garment that keeps moving on a still body at the scene's step moves numerically (a
-    light polyester skirt at 64 × 28 under backward Euler at 1/60 s buzzed at ~0.3 m/s with
-    thousands of triangles through each other; at 1/120 s it hangs still). Where no step
+    light polyester skirt at 64 × 28 under backward Euler at 1/60 s, CG stopped at 0.3 %,
+    buzzed at ~0.3 m/s with thousands of triangles through each other; at 1/120 s it hangs
+    still: docs/physics.md, "Settling before the dance"). Where no step
     brings it to rest (a motion of its own, such as wind), the run keeps the scene's step from
     the last try's state. The state is then the run's frame 0. Returns what it did (simulated
     seconds of the last try, the mean speed [m/s], whether it came to rest, how many times a
