@@ -6,9 +6,10 @@ its own Taichi offline cache, so the two never wait on one cache's lock.
 
 The session compiles without Taichi's own IR optimisation passes (``advanced_optimization``,
 which ``ti.init`` reads from ``TI_ADVANCED_OPTIMIZATION``; set here for this process and the
-command-line runs it starts, unless already set): the same kernels, the same physics, LLVM
-optimising them as always, and about half the compile time that dominates the suite, while
-runs (``simulate``, ``bench``) keep the passes for their ~10-40 % faster steps
+command-line runs it starts, unless already set): the same kernels and model, LLVM
+optimising them as always (the rounding differs, so a trajectory is not the product's bit for
+bit), and about half the compile time that dominates the suite, while runs (``simulate``,
+``bench``) keep the passes, with which the shipped scenes step 10-40 % faster
 (docs/performance.md, "The test session compiles without Taichi's IR passes").
 ``tests/test_runtime.py`` runs the shipped ``hula`` with the passes on, as a user does.
 ``TI_ADVANCED_OPTIMIZATION=1 make test`` runs the whole suite with them."""

@@ -118,6 +118,30 @@ def test_a_skirt_that_keeps_moving_at_the_scenes_step_settles_and_dances_at_a_sm
     assert record.frames[0].mean_speed < 0.05 and record.frames[1].max_strain < 0.03
 
 
+def test_a_garment_that_no_step_brings_to_rest_goes_on_from_the_scenes_step(monkeypatch):
+    """Where rest cannot be reached (a settle speed no skirt reaches), settling tries the
+    scene's step, half and a quarter of it, and then goes on from the scene's step's try: the
+    same state, bit for bit, as settling at that step alone, and the dance at that step."""
+    from taichi_cloth.physics import settling
+    simulation = Simulation.from_scene("hula", SMALL_SKIRT + ("simulation.settle=1",
+                                                              "simulation.settle_speed=1e-9"))
+    fresh = simulation.snapshot(effects=True)
+    scene_step = (simulation.time_step.dt, simulation.time_step.substeps_per_frame)
+    tried = []
+    settle_at = settling.settle_at
+    monkeypatch.setattr(settling, "settle_at", lambda sim, start, dt, record: (
+        tried.append(dt) or settle_at(sim, start, dt, record)))
+    report = settle(simulation, RunRecord())
+    assert tried == pytest.approx([scene_step[0], scene_step[0] / 2, scene_step[0] / 4])
+    assert not report["at_rest"] and report["step_halvings"] == 0
+    assert (simulation.time_step.dt, simulation.time_step.substeps_per_frame) == scene_step
+    after_three_tries = simulation.positions()
+    simulation.restore(fresh)
+    monkeypatch.setattr(settling, "SETTLE_STEP_HALVINGS", 0)
+    assert settle(simulation, RunRecord()) == report
+    np.testing.assert_array_equal(simulation.positions(), after_three_tries)
+
+
 def test_a_step_halved_while_settling_is_reported_and_the_dance_takes_the_scenes_step(
         settled, monkeypatch):
     """A settling frame that goes bad is redone at half the step (the frame guard); the halving

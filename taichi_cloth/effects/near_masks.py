@@ -12,9 +12,9 @@ its mask (``_next_capsule``).
 The slack follows the motion: a small one holds fewer capsules in fewer masks, a large one is
 remade less often. At each remaking it is halved when the masks lasted more than
 ``REMADE_AFTER[1]`` evaluations, doubled when fewer than ``REMADE_AFTER[0]``, between
-``MASK_SLACK`` of the longest rest edge: explicit substeps of ~40 µs settle at ⅛ of it (on the
-dancing ``hula`` ~340 samples with a capsule near instead of ~2,800), implicit steps of 1/60 s,
-where the hips move ~8 mm a step, at ½ (docs/performance.md).
+``MASK_SLACK`` of the longest rest edge: explicit substeps of ~40 µs settle at 1/16 of it (on
+the dancing ``hula`` 63–279 samples with a capsule near instead of ~2,800), implicit steps of
+1/60 s, where the hips move ~8 mm a step, stay at ½ (docs/performance.md).
 
 A point near a capsule first tests its squared distance to the axes of its mask
 (``_may_touch``, through ``_particle_mask`` and ``_sample_mask``); each evaluation marks the

@@ -16,52 +16,61 @@ SETTLE_CHECK_INTERVAL = 1.0 / 240.0  # s of settling between two checks of the k
 # in a mean speed already below settle_speed.
 SETTLED_STRAIN_CHANGE = 1e-3
 SETTLE_STEP_HALVINGS = 2  # times settling starts again at half the step when not at rest
+SETTLE_RETRY_MIN_SECONDS = 1.0  # s: a shorter cap is a budget, not a test of rest
 
 
 def settle(simulation, run_record: RunRecord) -> dict | None:
     """Let the garment come to rest on the body held still in its pose at t = 0, before
     the animation (the scene's ``simulation.settle`` > 0): ``settle_at`` with the scene's own
-    step; where that did not bring it to rest, again from the start at half the step (at most
+    step; where that did not bring it to rest within a cap of at least
+    ``SETTLE_RETRY_MIN_SECONDS``, again from the same start at half the step (at most
     ``SETTLE_STEP_HALVINGS`` times), and where a halved step did, the dance takes that step
     too: a garment that keeps moving on a still body at the scene's step moves numerically (a
     light polyester skirt at 64 × 28 under backward Euler at 1/60 s, CG stopped at 0.3 %,
     buzzed at ~0.3 m/s with thousands of triangles through each other; at 1/120 s it hangs
-    still: docs/physics.md, "Settling before the dance"). Where no step
-    brings it to rest (a motion of its own, such as wind), the run keeps the scene's step from
-    the last try's state. The state is then the run's frame 0. Returns what it did (simulated
-    seconds of the last try, the mean speed [m/s], whether it came to rest, how many times a
-    settling frame was redone at half the step (``retries``), the settling's step halvings and
-    the dance's step ``dt`` [s], and for the implicit integrator its unconverged CG steps,
-    which then do not count as the run's), kept as ``simulation.settle_report``, or None when
-    off; its compile time goes to ``run_record``'s ``compile``, the rest of its wall time to
-    ``settle``. A step halved by the frame guard while settling (for strain; the guard keeps a
-    halved step for the rest of a run) says nothing of the dance, whose frames the guard
-    checks in turn: kept, it made a silk skirt on the coarse body dance at 1/120 s instead of
-    1/60 s, at twice the cost and with ``retries`` 0 in stats.json."""
+    still: docs/physics.md, "Settling before the dance"). Where no step brings it to rest (a
+    motion of its own, such as wind), the run goes on from the scene's step's try, at that
+    step. The state is then the run's frame 0. Returns what the kept try did (simulated
+    seconds, the mean speed [m/s], whether it came to rest, how many times one of its frames
+    was redone at half the step (``retries``)), the settling's step halvings and the dance's
+    step ``dt`` [s], and for the implicit integrator the kept try's unconverged CG steps
+    (which do not count as the run's), kept as ``simulation.settle_report``, or None when off;
+    the tries' compile time goes to ``run_record``'s ``compile``, the rest of their wall time
+    to ``settle``. A step halved by the frame guard while settling (for strain; the guard
+    keeps a halved step for the rest of a run) says nothing of the dance, whose frames the
+    guard checks in turn: kept, it made a silk skirt on the coarse body dance at 1/120 s
+    instead of 1/60 s, at twice the cost and with ``retries`` 0 in stats.json."""
     settings = simulation.scene.simulation
     if settings.settle <= 0:
         return None
     started = time.perf_counter()
-    record = RunRecord()
     unconverged_before = getattr(simulation.integrator, "unconverged_steps", 0)
     start = simulation.positions()
     chosen = simulation.time_step
+    before = simulation.snapshot(effects=True)
+    compile_seconds = 0.0
     for halvings in range(SETTLE_STEP_HALVINGS + 1):
-        dt = chosen.dt / 2 ** halvings
-        simulated, mean_speed, at_rest = settle_at(simulation, start, dt, record)
-        if at_rest:
+        if halvings:
+            simulation.restore(before)  # the same start, integrator memory and crossings
+        record = RunRecord()
+        outcome = settle_at(simulation, start, chosen.dt / 2 ** halvings, record)
+        compile_seconds += record.wall_seconds["compile"]
+        at_rest = outcome[2]
+        if at_rest or settings.settle < SETTLE_RETRY_MIN_SECONDS:
             break
-    if at_rest:
-        simulation.set_time_step(dt, chosen.substeps_per_frame * 2 ** halvings)
-    else:
-        simulation.set_time_step(chosen.dt, chosen.substeps_per_frame)
-    compile_seconds = record.wall_seconds["compile"]
+        if halvings == 0:
+            first_try = simulation.snapshot(effects=True), outcome, record
+    if not at_rest and halvings:  # no step came to rest: the scene's step's try is kept
+        snapshot, outcome, record = first_try
+        simulation.restore(snapshot)
+        halvings = 0
+    simulation.set_time_step(chosen.dt / 2 ** halvings, chosen.substeps_per_frame * 2 ** halvings)
     run_record.wall_seconds["compile"] += compile_seconds
     run_record.wall_seconds["settle"] = time.perf_counter() - started - compile_seconds
+    simulated, mean_speed, at_rest = outcome
     simulation.settle_report = {"simulated_seconds": simulated, "mean_speed": mean_speed,
                                 "at_rest": bool(at_rest), "retries": record.retries,
-                                "step_halvings": halvings if at_rest else 0,
-                                "dt": simulation.time_step.dt}
+                                "step_halvings": halvings, "dt": simulation.time_step.dt}
     if hasattr(simulation.integrator, "unconverged_steps"):  # settling's own, not the run's
         simulation.settle_report["unconverged_steps"] = \
             simulation.integrator.unconverged_steps - unconverged_before
