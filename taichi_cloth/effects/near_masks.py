@@ -56,7 +56,8 @@ class NearMasks:
         self.mask_a = ti.Vector.field(3, real, self.capsule_count)
         self.mask_b = ti.Vector.field(3, real, self.capsule_count)
         self.mask_stale = ti.field(ti.i32, ())
-        self.mask_sphere_sq = ti.field(real, self.capsule_count)  # bounding sphere + slack, m²
+        # bounding sphere + the slack [m²], made with the masks
+        self.mask_sphere_sq = ti.field(real, self.capsule_count)
         # each evaluation's number, and per particle the last one in which a sample of its
         # passed ``_may_touch``
         self.evaluation = ti.field(ti.i32, ())
@@ -89,8 +90,9 @@ class NearMasks:
         for _ in range(1):
             self._fit_slack()
         for i_c in range(self.capsule_count):
-            self.mask_sphere_sq[i_c] = (ti.sqrt(self.capsule_reach_sq[i_c])
-                                        + self.mask_slack[None]) ** 2
+            if self.mask_stale[None]:
+                self.mask_sphere_sq[i_c] = (ti.sqrt(self.capsule_reach_sq[i_c])
+                                            + self.mask_slack[None]) ** 2
         for i_p in range(self.model.particle_count):
             if self.mask_stale[None]:
                 self.particle_near[i_p] = self._near_mask(x[i_p])

@@ -252,7 +252,8 @@ def run_bench(sizes, integrators, scene_names, seconds: float, repeats: int,
                 rows.extend(bench_effects(name, seconds, repeats))
                 say(f"{name}: passes")
                 rows.append(bench_passes(name, seconds, repeats))
-            say(f"{name}: every integrator")
+            say(f"{name}: " + ("every integrator" if integrators is None
+                               else ", ".join(integrators)))
             rows.extend(bench_scene_integrators(name, seconds, repeats, integrators))
             say(f"{name}: whole run")
             rows.append(bench_scene_run(name))
