@@ -21,6 +21,8 @@ CFG_OPTIMIZATION_ON_CPU = False
 # kernel, loop-invariant motion, ...) stay as Taichi's default (on): `hula`'s steps are 10-20 %
 # faster with them and its contact pass ~40 %. They take half of a compile, so the test session
 # turns them off through ``TI_ADVANCED_OPTIMIZATION`` (tests/conftest.py; docs/performance.md).
+# A launch whose whole substep runs in SIMD lanes is compiled without them
+# (``without_taichi_passes``): there they cost 25-45 % of the speed.
 
 # Taichi's own optimisation level, set here so that ``TI_OPT_LEVEL`` in the environment (which
 # ``ti.init`` reads) cannot change it: at 0 Taichi 1.7.4 compiles a serial loop that reads and
@@ -52,6 +54,24 @@ def start_taichi(arch: str = "cpu", kernel_profiler: bool = False,
         ti.init(arch=ARCHES[arch], random_seed=0, kernel_profiler=kernel_profiler, **options)
     if arch != "cpu" and ti.lang.impl.current_cfg().arch == ti.cpu:
         raise InputError(f"--arch {arch}: no {arch} device found (Taichi fell back to the CPU)")
+
+
+@contextlib.contextmanager
+def without_taichi_passes(wanted: bool = True):
+    """Kernels first launched inside compile without Taichi's IR passes (``advanced_optimization``
+    off; LLVM still optimises them), when ``wanted``. Taichi reads the program's configuration
+    when it first compiles a kernel and keys the compiled kernel (and its offline cache entry) by
+    it, so later launches outside run the same code. On the SIMD lanes of a gravity-only grid
+    (the reference sheet) the kernels step 25-45 % faster so (docs/performance.md, "The lanes
+    compiled without Taichi's IR passes"; why, was not traced)."""
+    config = ti.lang.impl.get_runtime().prog.config()
+    before = config.advanced_optimization
+    if wanted:
+        config.advanced_optimization = False
+    try:
+        yield
+    finally:
+        config.advanced_optimization = before
 
 
 def short_position_info(context, node) -> str:

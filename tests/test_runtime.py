@@ -2,7 +2,9 @@
 ``ti.init`` reads) made Taichi 1.7.4 compile a serial loop's read-modify-write of a 0-d field as
 if the field never changed, so ``start_taichi`` sets the level itself (taichi_cloth/runtime.py).
 And the configuration a user runs, with Taichi's IR optimisation passes that the test session
-turns off (conftest.py), runs the shipped ``hula`` within its bounds."""
+turns off (conftest.py), runs the shipped ``hula`` within its bounds; a launch compiled without
+those passes (``without_taichi_passes``: the reference sheet's SIMD lanes) is keyed by that
+configuration, and the passes are back on after it."""
 
 import json
 import os
@@ -54,6 +56,52 @@ def test_a_counter_in_a_serial_loop_counts_whatever_ti_opt_level_says(tmp_path):
                             env=shipped_environment(TI_OPT_LEVEL="0"))
     assert result.returncode == 0, result.stderr
     assert result.stdout.split()[-2:] == ["30", "1"]
+
+
+# one kernel, launched inside ``without_taichi_passes(wanted)`` (argv[1]) or not at all (""),
+# then the passes' state after it
+PASSES_KERNEL = """
+import sys
+import taichi as ti
+from taichi_cloth.runtime import start_taichi, without_taichi_passes
+start_taichi("cpu")
+total = ti.field(ti.f32, ())
+
+@ti.kernel
+def add(value: ti.f32):
+    total[None] += value * value
+
+config = ti.lang.impl.get_runtime().prog.config()
+with without_taichi_passes(sys.argv[1] == "off"):
+    before = config.advanced_optimization
+    add(3.0)
+try:
+    with without_taichi_passes():
+        raise RuntimeError
+except RuntimeError:
+    pass
+print(before, config.advanced_optimization, total[None])
+"""
+
+
+def test_a_launch_without_taichi_passes_compiles_a_kernel_of_its_own_and_restores_them(tmp_path):
+    """Each process compiles ``add`` into an empty offline cache shared by the three: with the
+    passes off a kernel of its own (a second cache file beside the one compiled with them on),
+    found again by the next process that turns them off (no third file); after the context, an
+    exception in one included, the passes are on again."""
+    script = tmp_path / "passes.py"
+    script.write_text(PASSES_KERNEL)
+    cache = tmp_path / "cache"
+    files = []
+    for passes, expected_during in (("on", "True"), ("off", "False"), ("off", "False")):
+        result = subprocess.run([sys.executable, str(script), passes], cwd=REPO,
+                                capture_output=True, text=True, timeout=120,
+                                env=shipped_environment(TI_OFFLINE_CACHE_FILE_PATH=str(cache)))
+        assert result.returncode == 0, result.stderr
+        assert result.stdout.split()[-3:] == [expected_during, "True", "9.0"]
+        files.append(len(list(cache.rglob("*.tic"))))
+    assert files[0] >= 1
+    assert files[1] == files[0] + 1 and files[2] == files[1]
 
 
 def test_the_shipped_hula_runs_within_its_bounds_as_a_user_compiles_it(tmp_path):

@@ -25,7 +25,7 @@ An optional ``post_step`` (the contact projection) runs after each substep.
 import taichi as ti
 
 from taichi_cloth.physics.forces import Forces
-from taichi_cloth.runtime import runs_on_cpu
+from taichi_cloth.runtime import runs_on_cpu, without_taichi_passes
 
 # Below this many particles one thread beats two (the measurement behind it is in
 # docs/performance.md, "Launch sizes"); an integrator with more work per particle sets its own
@@ -49,6 +49,8 @@ class Integrator:
     substep_batch = 2  # parallel substeps per kernel launch (each unrolled copy adds compile time)
     serial_particle_limit = SERIAL_PARTICLE_LIMIT  # cloth this small runs on one thread
     substeps_write_states = True  # False where substeps keep the state in packed lanes
+    # whether the launch kernels compile without Taichi's IR passes (``without_taichi_passes``)
+    compiles_without_passes = False
 
     def __init__(self, forces: Forces, control, post_step=None):
         """control: the prescribed motion (``physics.control.Control``: where pinned particles
@@ -113,12 +115,13 @@ class Integrator:
         return []
 
     def _launch(self, a, b, t: float, dt: float, count: int) -> None:
-        if not self.serial:
-            self._advance(a, b, t, dt, count)
-        elif id(a) < id(b):  # one compiled kernel per pair of states, whichever is newest
-            self._advance_serial(a, b, t, dt, count, 0)
-        else:
-            self._advance_serial(b, a, t, dt, count, 1)
+        with without_taichi_passes(self.compiles_without_passes):
+            if not self.serial:
+                self._advance(a, b, t, dt, count)
+            elif id(a) < id(b):  # one compiled kernel per pair of states, whichever is newest
+                self._advance_serial(a, b, t, dt, count, 0)
+            else:
+                self._advance_serial(b, a, t, dt, count, 1)
 
     @ti.kernel
     def _advance(self, a: ti.template(), b: ti.template(), t: ti.f64, dt: ti.f64,

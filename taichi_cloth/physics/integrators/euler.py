@@ -87,6 +87,7 @@ class EulerStep(Integrator):
         self.steps_in_lanes = self.has_packed \
             and forces.uniform_acceleration is not None and not self.has_post_step
         self.substeps_write_states = not self.steps_in_lanes
+        self.compiles_without_passes = self.steps_in_lanes  # 25-45 % faster lanes (runtime.py)
         if self.steps_in_lanes:
             self.group_step = group_pass_function(
                 self.packed, lane_step_function(forces, self.uses_new_velocity))
