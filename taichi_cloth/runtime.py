@@ -1,7 +1,6 @@
 """Starting the one Taichi runtime of a process."""
 
 import contextlib
-import functools
 import io
 
 import taichi as ti
@@ -23,8 +22,8 @@ CFG_OPTIMIZATION_ON_CPU = False
 # kernel, loop-invariant motion, ...) stay as Taichi's default (on): `hula`'s steps are 10-20 %
 # faster with them and its contact pass ~40 %. They take half of a compile, so the test session
 # turns them off through ``TI_ADVANCED_OPTIMIZATION`` (tests/conftest.py; docs/performance.md).
-# A launch whose whole substep runs in SIMD lanes is compiled without them
-# (``without_taichi_passes``): there they cost 25-45 % of the speed.
+# A launch whose whole substep runs in SIMD lanes of springs and gravity alone is compiled
+# without them (``without_taichi_passes``): it steps 20-40 % faster so.
 
 # Taichi's own optimisation level, set here so that ``TI_OPT_LEVEL`` in the environment (which
 # ``ti.init`` reads) cannot change it: at 0 Taichi 1.7.4 compiles a serial loop that reads and
@@ -64,8 +63,10 @@ def without_taichi_passes(wanted: bool = True):
     """Kernels first launched inside compile without Taichi's IR passes (``advanced_optimization``
     off; LLVM still optimises them), when ``wanted``. Taichi reads the program's configuration
     when it first compiles a kernel and keys the compiled kernel (and its offline cache entry) by
-    it, so later launches outside run the same code. On the SIMD lanes of a gravity-only grid
-    (the reference sheet) the kernels step 25-45 % faster so (docs/performance.md, "The lanes
+    it, so later launches outside run the same code. A ``ti.real_func`` is compiled once, by the
+    first kernel that calls it, whatever the next one's configuration: a caller wraps only
+    kernels whose real functions no other kernel calls. The gravity-only SIMD lanes (the
+    reference sheet) step 20-40 % faster so at 64²-128² (docs/performance.md, "The lanes
     compiled without Taichi's IR passes"; why, was not traced)."""
     config = ti.lang.impl.get_runtime().prog.config()
     before = config.advanced_optimization
@@ -78,18 +79,37 @@ def without_taichi_passes(wanted: bool = True):
 
 
 def remember_kernel_sources() -> None:
-    """Taichi 1.7 reads a ``ti.func``'s source again (``inspect.getsourcelines`` and
-    ``getsourcefile``: the module found by scanning ``sys.modules``, the function's block found
-    by tokenising its file) every time a kernel inlines it, hundreds of times a scene (438
-    kernel builds for 3 frames of ``hula``). Each function's answer is kept for the process
-    (the source of a function object cannot change): building ``hula``'s kernels took 1.2-1.4 s
+    """Taichi 1.7 reads a ``ti.func``'s source again every time a kernel inlines it
+    (``inspect.getsourcelines``: the module found by scanning ``sys.modules``, the function's
+    block tokenised; ``getsourcefile``), hundreds of times a scene (812 reads of 98 functions
+    for 3 frames of ``hula``). Each answer is kept for the process, by the function's code
+    object and its file (closures of one code share it; code put in place by a reload is new;
+    nothing else of the function is kept alive): building ``hula``'s kernels took 1.2-1.4 s
     against 1.6-1.9 s, the whole 3-frame run 4.5-5.2 s against 5.0-6.0 s (in turns; with the
-    offline cache warm).
-    The tree is still parsed afresh each time (Taichi's transformer writes into it)."""
+    offline cache warm). The tree is still parsed afresh each time (Taichi's transformer writes
+    into it)."""
     for name in ("getsourcelines", "getsourcefile"):
         reader = getattr(kernel_impl, name)
-        if not hasattr(reader, "cache_info"):
-            setattr(kernel_impl, name, functools.cache(reader))
+        if not getattr(reader, "remembers", False):
+            setattr(kernel_impl, name, remembered_by_code(reader))
+
+
+def remembered_by_code(reader):
+    """``reader(func)`` remembered per (file, first line, code object) of ``func``: code
+    objects compare by value, not by file. Anything without ``__code__`` is read each time."""
+    answers = {}
+
+    def read(func):
+        code = getattr(func, "__code__", None)
+        if code is None:
+            return reader(func)
+        key = (code.co_filename, code.co_firstlineno, code)
+        if key not in answers:
+            answers[key] = reader(func)
+        return answers[key]
+
+    read.remembers = True
+    return read
 
 
 def short_position_info(context, node) -> str:

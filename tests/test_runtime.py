@@ -120,3 +120,36 @@ def test_the_shipped_hula_runs_within_its_bounds_as_a_user_compiles_it(tmp_path)
     assert stats["max_strain"] < 0.03
     assert stats["max_penetration"] < 0.004
     assert stats["per_frame"][0]["mean_speed"] < 0.05
+
+
+def test_remembered_sources_are_read_once_per_code_and_file_and_keep_no_function_alive(tmp_path):
+    """``remembered_by_code``: two closures of one code share one read; the same code from
+    another file is read again (code objects compare equal across files); a closure whose
+    answer is kept is not kept alive by it."""
+    import gc
+    import weakref
+
+    from taichi_cloth.runtime import remembered_by_code
+
+    reads = []
+    read = remembered_by_code(lambda func: reads.append(func.__code__.co_filename) or len(reads))
+
+    def make(scale):
+        def scaled(value):
+            return scale * value
+        return scaled
+
+    first, second = make(2.0), make(3.0)
+    assert read(first) == read(second) == 1 and len(reads) == 1
+    twins = []
+    for name in ("a.py", "b.py"):  # equal code objects, two files
+        namespace = {}
+        exec(compile("def twin(value):\n    return 2.0 * value\n", str(tmp_path / name), "exec"),
+             namespace)
+        twins.append(namespace["twin"])
+    assert twins[0].__code__ == twins[1].__code__
+    assert (read(twins[0]), read(twins[1]), read(twins[0])) == (2, 3, 2)
+    alive = weakref.ref(second)
+    del second
+    gc.collect()
+    assert alive() is None
