@@ -68,10 +68,12 @@ def without_taichi_passes(wanted: bool = True):
     kernels whose real functions no other kernel calls. The gravity-only SIMD lanes (the
     reference sheet) step 20-40 % faster so at 64²-128² (docs/performance.md, "The lanes
     compiled without Taichi's IR passes"; why, was not traced)."""
+    if not wanted:  # every other integrator's launch: nothing to read or set
+        yield
+        return
     config = ti.lang.impl.get_runtime().prog.config()
     before = config.advanced_optimization
-    if wanted:
-        config.advanced_optimization = False
+    config.advanced_optimization = False
     try:
         yield
     finally:
