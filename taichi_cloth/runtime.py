@@ -1,10 +1,14 @@
 """Starting the one Taichi runtime of a process."""
 
 import contextlib
+import functools
 import io
+import textwrap
+import traceback
+import types
 
 import taichi as ti
-from taichi.lang import kernel_impl
+from taichi.lang import _ndarray, impl, kernel_impl, matrix, snode
 from taichi.lang.ast import ast_transformer_utils
 
 from taichi_cloth.errors import InputError
@@ -47,6 +51,8 @@ def start_taichi(arch: str = "cpu", kernel_profiler: bool = False,
         return
     ast_transformer_utils.ASTTransformerContext.get_pos_info = short_position_info
     remember_kernel_sources()
+    for module in (impl, snode, matrix, _ndarray):
+        module.get_traceback = innermost_traceback
     options = {"opt_level": OPT_LEVEL}
     if threads is not None:
         options["cpu_max_num_threads"] = threads
@@ -94,6 +100,15 @@ def remember_kernel_sources() -> None:
         reader = getattr(kernel_impl, name)
         if not getattr(reader, "remembers", False):
             setattr(kernel_impl, name, remembered_by_code(reader))
+    kernel_impl.textwrap = REMEMBERED_TEXTWRAP
+
+
+# What Taichi 1.7 uses of ``textwrap`` when it parses a function (``fill`` on each source line,
+# then ``dedent``): pure functions of their text, their answers kept for the process (the
+# lines of every parse of every function of the 3 files of tests profiled: 117,000 ``fill``s,
+# 5 of the 330 s under the profiler).
+REMEMBERED_TEXTWRAP = types.SimpleNamespace(
+    fill=functools.cache(textwrap.fill), dedent=functools.cache(textwrap.dedent))
 
 
 def remembered_by_code(reader):
@@ -112,6 +127,18 @@ def remembered_by_code(reader):
 
     read.remembers = True
     return read
+
+
+TRACEBACK_FRAMES = 4  # of the stack where a field is declared, kept for Taichi's messages
+
+
+def innermost_traceback(stacklevel: int = 1) -> str:
+    """Taichi 1.7's ``get_traceback`` for what it records where a field or SNode is declared
+    (shown if a field is used unplaced), but of the ``TRACEBACK_FRAMES`` frames within: Taichi
+    formats the whole stack, each line read from its file, at every field it creates (13 of
+    the 330 s that 3 files of tests took under the profiler; deep under pytest)."""
+    frames = traceback.extract_stack(limit=stacklevel + 1 + TRACEBACK_FRAMES)
+    return "".join(traceback.format_list(frames[: -1 - stacklevel]))
 
 
 def short_position_info(context, node) -> str:

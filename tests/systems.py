@@ -72,13 +72,13 @@ class SpringOscillator:
         self.model = Model(self.garment, "f64", 1.0 if damping_ratio > 0 else None)
         self.integrator = assemble(self.model, integrator=integrator).integrator
         self.omega, self.amplitude = omega, amplitude
-        self.state_in, self.state_out = self.model.state(), self.model.state()
+        self.states = self.model.states(2)
+        self.state_in, self.state_out = self.states.members
 
     def reset(self) -> None:
         x = self.garment.positions.copy()
         x[1, 0] += self.amplitude
-        self.state_in.x.from_numpy(x)
-        self.state_in.v.fill(0.0)
+        self.states.write(self.state_in, x, np.zeros_like(x))
 
     def run(self, steps: int, h: float) -> list[tuple[float, float]]:
         """(u, v) of the free particle after each step, from a fresh start."""
@@ -87,7 +87,7 @@ class SpringOscillator:
         for n in range(steps):
             self.integrator.step(self.state_in, self.state_out, n * h, h)
             self.state_in, self.state_out = self.state_out, self.state_in
-            x, v = self.state_in.x.to_numpy(), self.state_in.v.to_numpy()
+            x, v = self.states.read(self.state_in)
             history.append((x[1, 0] - 1.0, v[1, 0]))
         return history
 

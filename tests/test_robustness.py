@@ -91,10 +91,10 @@ def interrupt_at(frame_to_stop: int):
     ``frame_to_stop``, after the frames before it were whole."""
     measure = Simulation.measure
 
-    def measure_or_stop(self, frame, x, v, *counted):
+    def measure_or_stop(self, frame, x, v, *counted, **taken):
         if frame == frame_to_stop:
             raise KeyboardInterrupt
-        return measure(self, frame, x, v, *counted)
+        return measure(self, frame, x, v, *counted, **taken)
 
     return measure_or_stop
 

@@ -153,3 +153,20 @@ def test_remembered_sources_are_read_once_per_code_and_file_and_keep_no_function
     del second
     gc.collect()
     assert alive() is None
+
+
+def test_a_field_keeps_the_innermost_frames_of_where_it_was_declared():
+    """``innermost_traceback``: what Taichi records where a field is declared is the end of the
+    whole stack's traceback, ``TRACEBACK_FRAMES`` frames of it, this test's line among them."""
+    import taichi as ti
+    from taichi.lang.util import get_traceback
+
+    from taichi_cloth.runtime import TRACEBACK_FRAMES, innermost_traceback
+
+    whole, innermost = get_traceback(1), innermost_traceback(1)
+    assert whole.endswith(innermost)
+    assert innermost.count('  File "') == TRACEBACK_FRAMES < whole.count('  File "')
+    declared = ti.field(ti.f32, 2)
+    where = declared.vars[0].declaration_tb
+    assert where.count('  File "') == TRACEBACK_FRAMES
+    assert f'File "{__file__}"' in where and "declared = ti.field(ti.f32, 2)" in where

@@ -1,11 +1,13 @@
 """``uploads.upload`` fills fields exactly as ``from_numpy`` does, in one launch, and an
-``UploadBatch`` holds its copies until sent; ``gather.side_lists`` splits CSR rows for the
-Gauss–Seidel sweeps."""
+``UploadBatch`` holds its copies until sent; a ``StateSet`` reads, writes and copies its states
+as ``to_numpy``, ``from_numpy`` and ``copy_from`` do; ``gather.side_lists`` splits CSR rows for
+the Gauss–Seidel sweeps."""
 
 import numpy as np
 import pytest
 import taichi as ti
 
+from taichi_cloth.physics.model import State, StateSet
 from taichi_cloth.uploads import UploadBatch, upload
 
 
@@ -27,6 +29,26 @@ def test_a_batch_of_fields_holds_the_bits_from_numpy_gives():
     for name in ("f64", "lanes", "ints", "flags"):
         held = fields[name].to_numpy()
         assert np.array_equal(held, arrays[name].astype(held.dtype))
+
+
+def test_a_state_set_moves_the_bits_to_numpy_from_numpy_and_copy_from_move():
+    rng = np.random.default_rng(5)
+    x, v = rng.standard_normal((7, 3)) * 1e3, rng.standard_normal((7, 3))
+    states = StateSet([State(7, ti.f32) for _ in range(3)])
+    reference = State(7, ti.f32)
+    states.write(states.members[1], x, v)  # f64 → f32 rounds as NumPy's astype does
+    reference.x.from_numpy(x.astype(np.float32))
+    reference.v.from_numpy(v.astype(np.float32))
+    read = states.read(states.members[1])
+    assert all(array.dtype == np.float64 for array in read)
+    assert np.array_equal(read[0], reference.x.to_numpy())
+    assert np.array_equal(read[1], reference.v.to_numpy())
+    states.copy(states.members[2], states.members[1])
+    for member, expected in ((states.members[2], read), (states.members[0], (0 * x, 0 * v))):
+        for held, array in zip(states.read(member), expected):
+            assert np.array_equal(held, array)
+    with pytest.raises(ValueError, match="not one of its members"):
+        states.read(reference)
 
 
 def test_matrix_and_zero_dimensional_fields_are_filled_component_by_component():

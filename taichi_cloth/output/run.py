@@ -151,6 +151,7 @@ def run_in_folder(scene: Scene, frame_count: int, folder: OwnedFolder, quiet: bo
 
         def on_frame(frame, metrics):
             t = simulation.frame_time(frame)
+            snapshot = simulation.snapshot(effects=True)
             started = time.perf_counter()
             if renderer is not None:
                 image = renderer.draw(simulation.state_in.x, t)
@@ -158,15 +159,14 @@ def run_in_folder(scene: Scene, frame_count: int, folder: OwnedFolder, quiet: bo
                 if append_video is not None:
                     append_video(image)
             rendered = time.perf_counter()
-            if series:
-                positions = simulation.positions()
             for mesh, points in series:
-                mesh.append(frame, t, points(t, positions))
-            cache.append(frame, t, simulation.state_in.x.to_numpy(),
-                         simulation.state_in.v.to_numpy())
+                mesh.append(frame, t, points(t, snapshot.positions))
+            real = simulation.model.numpy_real  # the cache keeps the simulation's own values
+            cache.append(frame, t, snapshot.positions.astype(real),
+                         snapshot.velocities.astype(real))
             seconds["render"] += rendered - started
             seconds["export"] += time.perf_counter() - rendered
-            finished.update(frame=frame, snapshot=simulation.snapshot(effects=True))
+            finished.update(frame=frame, snapshot=snapshot)
             progress.update(t)
 
         try:

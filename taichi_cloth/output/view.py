@@ -67,8 +67,7 @@ class LiveSource:
     def restart(self) -> None:
         self.simulation.restore(self.start)
         self.frame = 0
-        x = self.simulation.positions()
-        self.metrics = self.simulation.measure(0, x, self.simulation.state_in.v.to_numpy())
+        self.metrics = self.simulation.measure(0, *self.simulation.host_state())
 
     def advance(self) -> bool:
         if self.frame >= self.frame_count:

@@ -50,6 +50,70 @@ class State:
         self.v.copy_from(other.v)
 
 
+HOST_VECTORS = ti.types.ndarray(dtype=ti.types.vector(3, ti.f64), ndim=1)  # (N, 3) float64
+
+
+@ti.data_oriented
+class StateSet:
+    """The states a simulation keeps (``members``: the two its integrator swaps and a backup),
+    read to the host, written from it and copied one into another by one kernel each,
+    whichever member it is given. Taichi compiles its own kernel for each field that
+    ``to_numpy``, ``from_numpy`` or ``copy_from`` is given (~0.1 s each on the 2-core machine):
+    per field of each member, that was ~14 compiles a simulation, 1,151 of the test suite's
+    2,363 (docs/performance.md, "Kernels compiled per field")."""
+
+    def __init__(self, members: list[State]):
+        self.members = tuple(members)
+        self.particle_count = members[0].x.shape[0]
+
+    def _slot(self, state: State) -> int:
+        for slot, member in enumerate(self.members):
+            if member is state:
+                return slot
+        raise ValueError("StateSet: a state that is not one of its members")
+
+    def read(self, state: State) -> tuple[np.ndarray, np.ndarray]:
+        """Host copies of ``state``'s positions [m] and velocities [m/s], (N, 3) float64."""
+        x, v = np.empty((self.particle_count, 3)), np.empty((self.particle_count, 3))
+        self._read(self._slot(state), x, v)
+        return x, v
+
+    def write(self, state: State, x: np.ndarray, v: np.ndarray) -> None:
+        """Set ``state`` to positions x [m] and velocities v [m/s] (N, 3), rounded to the
+        fields' type to nearest (as NumPy's ``astype`` rounds)."""
+        self._write(self._slot(state), np.ascontiguousarray(x, dtype=np.float64),
+                    np.ascontiguousarray(v, dtype=np.float64))
+
+    def copy(self, target: State, source: State) -> None:
+        """``target`` = ``source`` (two members)."""
+        self._copy(self._slot(target), self._slot(source))
+
+    @ti.kernel
+    def _read(self, slot: ti.i32, x: HOST_VECTORS, v: HOST_VECTORS):
+        for i in range(self.particle_count):
+            for k in ti.static(range(len(self.members))):
+                if slot == k:
+                    x[i] = ti.cast(self.members[k].x[i], ti.f64)
+                    v[i] = ti.cast(self.members[k].v[i], ti.f64)
+
+    @ti.kernel
+    def _write(self, slot: ti.i32, x: HOST_VECTORS, v: HOST_VECTORS):
+        for i in range(self.particle_count):
+            for k in ti.static(range(len(self.members))):
+                if slot == k:
+                    self.members[k].x[i] = ti.cast(x[i], self.members[k].x.dtype)
+                    self.members[k].v[i] = ti.cast(v[i], self.members[k].v.dtype)
+
+    @ti.kernel
+    def _copy(self, target: ti.i32, source: ti.i32):
+        for i in range(self.particle_count):
+            for k, j in ti.static(ti.ndrange(len(self.members), len(self.members))):
+                if ti.static(k != j):
+                    if target == k and source == j:
+                        self.members[k].x[i] = self.members[j].x[i]
+                        self.members[k].v[i] = self.members[j].v[i]
+
+
 @ti.data_oriented
 class Model:
     """Static cloth data in Taichi fields.
@@ -125,13 +189,13 @@ class Model:
 
     def state(self) -> State:
         """A fresh state at the start positions, at rest."""
-        return self.states(1)[0]
+        return self.states(1).members[0]
 
-    def states(self, count: int) -> list[State]:
+    def states(self, count: int) -> StateSet:
         """``count`` fresh states, allocated together, then filled with every copy ``uploads``
         holds (module docstring)."""
         states = [State(self.particle_count, self.real) for _ in range(count)]
         start, rest = self._real(self.garment.start_positions), np.zeros((self.particle_count, 3))
         self.uploads.add([pair for state in states for pair in ((state.x, start), (state.v, rest))])
         self.uploads.send()
-        return states
+        return StateSet(states)

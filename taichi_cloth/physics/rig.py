@@ -22,6 +22,7 @@ from taichi_cloth.body.props import PROPS, Bar
 from taichi_cloth.config.scene import Scene
 from taichi_cloth.errors import InputError
 from taichi_cloth.physics.control import Control
+from taichi_cloth.uploads import upload
 
 SAMPLES_PER_FRAME = 8
 PEAK_SAMPLE_RATE = 60.0  # 1/s: poses a second sampled for the pins' peak acceleration
@@ -131,10 +132,12 @@ class BodyRig:
         capsule_velocities = np.stack([
             np.stack([p.capsule_velocity_a, p.capsule_velocity_b], axis=1).reshape(-1, 3)
             for p in poses])
-        control.capsule_track.upload(first_time, interval, capsule_positions, capsule_velocities)
+        tracks = control.capsule_track.pairs(first_time, interval, capsule_positions,
+                                             capsule_velocities)
         if self.carries_pins and len(control.pinned_particles):
             pin_positions, pin_velocities = zip(*(self.carried_pins(p) for p in poses))
-            control.pin_track.upload(first_time, interval, np.stack(pin_positions),
-                                     np.stack(pin_velocities))
+            tracks += control.pin_track.pairs(first_time, interval, np.stack(pin_positions),
+                                              np.stack(pin_velocities))
+        upload(tracks)  # one launch (one kernel to compile) for both tracks
         self.pose_at_frame_end = poses[-1]
         control.capsule_ends_at_frame_end = (poses[-1].capsule_a, poses[-1].capsule_b)

@@ -94,8 +94,7 @@ def settle_at(simulation, start: np.ndarray, dt: float, record: RunRecord) -> tu
     free = ~simulation.garment.pinned
     mass = simulation.model.host_mass
     rippled = start + settling_ripple(simulation.garment) * free[:, None]
-    simulation.state_in.x.from_numpy(rippled.astype(simulation.model.numpy_real))
-    simulation.state_in.v.fill(0)
+    simulation.states.write(simulation.state_in, rippled, np.zeros_like(rippled))
     simulation.forget_crossings()
     steps_per_check = max(1, round(SETTLE_CHECK_INTERVAL / dt))
     checks_per_frame = max(1, round(simulation.frame_duration / (steps_per_check * dt)))
@@ -107,16 +106,16 @@ def settle_at(simulation, start: np.ndarray, dt: float, record: RunRecord) -> tu
         simulation.integrator.take_iterations()
         simulated += simulation.time_step.dt * simulation.time_step.substeps_per_frame
         since_zeroed += 1
-        v = simulation.state_in.v.to_numpy().astype(np.float64)
+        x, v = simulation.host_state()
         speed_sq = np.sum(v * v, axis=1)
         mean_speed = simulation.mean_free_speed(v)
         strain_before = strain
-        strain = largest_stretch_strain(simulation.model, simulation.positions())
+        strain = largest_stretch_strain(simulation.model, x)
         at_rest = since_zeroed >= checks_per_frame and mean_speed < settings.settle_speed \
             and abs(strain - strain_before) < SETTLED_STRAIN_CHANGE
         kinetic = 0.5 * float(np.sum(mass * speed_sq))
         if kinetic < previous and not at_rest:
-            simulation.state_in.v.fill(0)
+            simulation.states.write(simulation.state_in, x, np.zeros_like(v))
             kinetic, since_zeroed = 0.0, 0
         previous = kinetic
     return simulated, mean_speed, at_rest

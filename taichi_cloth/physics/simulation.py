@@ -92,7 +92,8 @@ class Simulation:
                                           post_step_of(self.effects), scene.simulation)
         # scratch for ``total_forces``, allocated before the states send the model's uploads
         self.force_scratch = ti.Vector.field(3, self.model.real, self.model.particle_count)
-        self.state_in, self.state_out, self.backup = self.model.states(3)
+        self.states = self.model.states(3)  # state_in, state_out and the backup of a redo
+        self.state_in, self.state_out, self.backup = self.states.members
         self._compiled_variants = set()
         self.time_step = self._choose_time_step()
 
@@ -141,8 +142,12 @@ class Simulation:
         """Simulated time [s] of ``frame``: frame 0 is the start (t = 0), frame k is k/fps."""
         return frame / self.scene.scene.fps
 
+    def host_state(self) -> tuple[np.ndarray, np.ndarray]:
+        """Host copies of the current positions [m] and velocities [m/s], (N, 3) float64."""
+        return self.states.read(self.state_in)
+
     def positions(self) -> np.ndarray:
-        return self.state_in.x.to_numpy().astype(np.float64)
+        return self.host_state()[0]
 
     def total_forces(self) -> np.ndarray:
         """Every particle's total force [N] (N, 3) at the current state, at t = 0."""
@@ -155,17 +160,14 @@ class Simulation:
         bit for bit)."""
         effect_memory = {f"{effect.name}.{key}": value for effect in self.effects
                          for key, value in effect.memory().items()} if effects else {}
-        return Snapshot(positions=self.positions(),
-                        velocities=self.state_in.v.to_numpy().astype(np.float64),
-                        dt=self.time_step.dt, substeps_per_frame=self.time_step.substeps_per_frame,
+        return Snapshot(*self.host_state(), dt=self.time_step.dt,
+                        substeps_per_frame=self.time_step.substeps_per_frame,
                         integrator_memory=self.integrator.memory(), effect_memory=effect_memory)
 
     def restore(self, snapshot: Snapshot) -> None:
         """Put a ``snapshot`` back: the next frame continues exactly from it (the effects'
         history from scratch where it holds none)."""
-        real = self.model.numpy_real
-        self.state_in.x.from_numpy(snapshot.positions.astype(real))
-        self.state_in.v.from_numpy(snapshot.velocities.astype(real))
+        self.states.write(self.state_in, snapshot.positions, snapshot.velocities)
         self.set_time_step(snapshot.dt, snapshot.substeps_per_frame)
         self.integrator.restore_memory(snapshot.integrator_memory)
         self.forget_crossings()
@@ -184,13 +186,13 @@ class Simulation:
 
     def _back_up(self) -> None:
         """The state and what the effects carry from step to step, kept for a redone frame."""
-        self.backup.copy_from(self.state_in)
+        self.states.copy(self.backup, self.state_in)
         for effect in self.effects:
             effect.back_up()
 
     def _roll_back(self) -> None:
         """The state of the last ``_back_up`` put back, and what the effects carried then."""
-        self.state_in.copy_from(self.backup)
+        self.states.copy(self.state_in, self.backup)
         for effect in self.effects:
             effect.roll_back()
 
@@ -201,8 +203,7 @@ class Simulation:
         settings = self.scene.simulation
         if not (np.isfinite(x).all() and np.isfinite(v).all()):
             return "became non-finite"
-        if strain is None:
-            strain = largest_stretch_strain(self.model, x)
+        strain = largest_stretch_strain(self.model, x) if strain is None else strain
         if strain > settings.blowup_strain:
             return f"exploded (max strain {strain:.3g} > simulation.blowup_strain " \
                    f"{settings.blowup_strain:g})"
@@ -333,7 +334,7 @@ class Simulation:
 
     def _end_state(self):
         """(x [m], v [m/s], x's largest stretch strain or None, ``state_problem``) now."""
-        x, v = self.positions(), self.state_in.v.to_numpy().astype(np.float64)
+        x, v = self.host_state()
         strain = largest_stretch_strain(self.model, x) if np.isfinite(x).all() else None
         return x, v, strain, self.state_problem(x, v, strain)
 
@@ -372,11 +373,10 @@ class Simulation:
         record = RunRecord() if record is None else record
         for frame in range(first_frame, frame_count + 1):
             if frame == 0:
-                x, v = self.positions(), self.state_in.v.to_numpy().astype(np.float64)
-                problem = self.state_problem(x, v)
+                x, v, strain, problem = self._end_state()
                 if problem is not None:
                     raise UnstableError(f"frame 0: the starting cloth {problem}", 0)
-                metrics = self.measure(0, x, v)
+                metrics = self.measure(0, x, v, strain=strain)
             else:
                 metrics = self.guarded_frame(frame, record)
             iterations = self.integrator.take_iterations()

@@ -78,7 +78,7 @@ def bench_reference(size: int, integrator_name: str, seconds: float, repeats: in
     control = Control(model.garment.pinned, model.garment.positions, model.real)
     control.upload(model.uploads)
     integrator = make_integrator(integrator_name, forces, control)
-    states = model.states(2)
+    states = list(model.states(2).members)
     batch = max(1, min(256, round(2e6 / model.particle_count)))
     clock = [0.0]
 
