@@ -154,7 +154,7 @@ def test_a_vertex_that_goes_round_the_edge_changes_side_without_crossing():
                                                                rel=1e-9)
     _, state, _, effect = two_triangle_physics()
     finish_step(effect, state)
-    assert effect.frame_metrics(steps[-1])["self_collision_crossed"] == 0
+    assert effect.frame_metrics(steps[-1], 0.0)["self_collision_crossed"] == 0
 
 
 def crossing_edges(height: float) -> np.ndarray:
@@ -190,7 +190,7 @@ def test_a_step_that_crosses_ends_with_the_pair_a_thickness_apart_on_its_side(be
     forces, state, out, effect = two_triangle_physics()
     self_collision_force(before)
     finish_step(effect, state)
-    separations = effect.frame_metrics(before)["self_collision_separations"]
+    separations = effect.frame_metrics(before, 0.0)["self_collision_separations"]
     state.x.from_numpy(after)
     velocity = np.zeros((6, 3))
     velocity[3, 1] = -1.0
@@ -206,7 +206,7 @@ def test_a_step_that_crosses_ends_with_the_pair_a_thickness_apart_on_its_side(be
     np.testing.assert_allclose(MASS @ (x - after), 0.0, atol=1e-12)
     np.testing.assert_allclose(MASS @ v, MASS @ velocity, atol=1e-12)
     assert -1.0 < v[3, 1] and v[0, 1] < 0  # the approach shared out
-    metrics = effect.frame_metrics(x)
+    metrics = effect.frame_metrics(x, 0.0)
     assert metrics["self_collision_crossed"] == 0
     assert metrics["self_collision_separations"] == separations + 1
 
@@ -230,7 +230,7 @@ def test_putting_a_pair_back_stretches_no_spring_past_its_length_before():
     x = state.x.to_numpy()
     assert np.linalg.norm(x[4] - x[3]) == pytest.approx(1.5, rel=1e-12)
     assert 0.5 * SEPARATION * THICKNESS < x[3, 1] - x[0, 1]  # above the face, still apart
-    assert effect.frame_metrics(x)["self_collision_crossed"] == 0
+    assert effect.frame_metrics(x, 0.0)["self_collision_crossed"] == 0
     np.testing.assert_allclose(MASS @ (x - after), 0.0, atol=1e-12)
 
 
@@ -245,12 +245,12 @@ def refused_step(physics, before: np.ndarray, after: np.ndarray):
     state.x.from_numpy(before)
     forces.evaluate(state.x, state.v, 0.0, out)
     finish_step(effect, state)
-    counts = effect.frame_metrics(before)
+    counts = effect.frame_metrics(before, 0.0)
     state.x.from_numpy(after)
     finish_step(effect, state)
     x = state.x.to_numpy()
     np.testing.assert_array_equal(x, after)
-    metrics = effect.frame_metrics(x)
+    metrics = effect.frame_metrics(x, 0.0)
     assert metrics["self_collision_refusals"] == counts["self_collision_refusals"] + 1
     assert metrics["self_collision_separations"] == counts["self_collision_separations"]
     forces.evaluate(state.x, state.v, 0.0, out)
@@ -314,7 +314,7 @@ def test_a_vertex_that_comes_through_the_face_from_beyond_the_reach_in_one_step_
     else:
         effect.repair(state)
     x = state.x.to_numpy()
-    assert x[3, 1] > x[0, 1] and effect.frame_metrics(x)["self_collision_crossed"] == 0
+    assert x[3, 1] > x[0, 1] and effect.frame_metrics(x, 0.0)["self_collision_crossed"] == 0
 
 
 def test_a_redone_frame_gets_back_the_records_of_its_start():

@@ -41,8 +41,9 @@ Genesis' ``force_fields.py``). What an effect declares:
   (½·ρ·C_d [kg/m³]): on a packed grid cloth the SIMD pass then computes each face once, in
   lanes, and each particle reads back its six (drag).
 - ``stability_modes()``: the (k̂ [1/s²], ζ) of each stiff mode it adds, for ``dt = "auto"``.
-- ``potential_energy(x, mass)`` [J], ``penetration_depths(points)`` [m] and ``frame_metrics(x)`` (more
-  per-frame values for ``stats.json``, by name): its metrics.
+- ``potential_energy(x, mass)`` [J], ``penetration_depths(points)`` [m] and
+  ``frame_metrics(x, potential)`` (more per-frame values for ``stats.json``, by name, given the
+  potential energy already taken): its metrics.
 - ``upload()``: add the copies into its fields to the model's ``uploads`` (sent in one launch
   once every field of the simulation is allocated: one SNode tree).
 - ``post_step``: an object with a ``@ti.func apply(state, t)`` to run after every substep (the
@@ -149,6 +150,7 @@ class Effect:
         end of the frame (0 outside; the margin does not count), or None without a collider."""
         return None
 
-    def frame_metrics(self, x: np.ndarray) -> dict:
-        """Further per-frame metrics of positions x, by name: none here."""
+    def frame_metrics(self, x: np.ndarray, potential: float) -> dict:
+        """Further per-frame metrics of positions x, by name (``potential``: this effect's
+        ``potential_energy`` at x [J], already taken): none here."""
         return {}

@@ -202,8 +202,8 @@ class Bending(Effect):
     def potential_energy(self, x: np.ndarray, mass: np.ndarray) -> float:
         return self.energy(x)
 
-    def frame_metrics(self, x: np.ndarray) -> dict:
-        return {"bending_energy": self.energy(x)}
+    def frame_metrics(self, x: np.ndarray, potential: float) -> dict:
+        return {"bending_energy": potential}
 
     def rest_stiffness_product(self, u: np.ndarray) -> np.ndarray:
         """K·u = H·u of the bending Hessian (−∂f/∂x, positive semi-definite) [N], for ω_max."""

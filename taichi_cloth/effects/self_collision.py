@@ -380,7 +380,7 @@ class SelfCollision(Effect):
         self.pairs.update(state.x)
         self.apply(state, 0.0)
 
-    def frame_metrics(self, x: np.ndarray) -> dict:
+    def frame_metrics(self, x: np.ndarray, potential: float) -> dict:
         """Candidate pairs dropped since the start (0 unless the capacities of
         ``candidate_pairs`` are too small for the scene: then contacts can be missed), the list's
         builds since the start, its pairs at the last build, the pairs put back onto their sides

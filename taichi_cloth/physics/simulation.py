@@ -228,16 +228,16 @@ class Simulation:
         ``halvings`` of each redo guard on. ``strain``: x's largest stretch strain if taken."""
         mass = self.model.host_mass
         kinetic = 0.5 * float(np.sum(mass * np.sum(v * v, axis=1)))
-        potential = sum(effect.potential_energy(x, mass) for effect in self.effects) \
-            + spring_energy(self.model, x)
+        energies = [effect.potential_energy(x, mass) for effect in self.effects]
+        potential = sum(energies) + spring_energy(self.model, x)
         samples = surface_samples(x, self.surface_edges, self.garment.triangles)
         depth = np.zeros(len(samples))
         for effect in self.effects:
             inside = effect.penetration_depths(samples)
             if inside is not None:
                 depth = np.maximum(depth, inside)
-        extra = {name: value for effect in self.effects
-                 for name, value in effect.frame_metrics(x).items()}
+        extra = {name: value for effect, energy in zip(self.effects, energies)
+                 for name, value in effect.frame_metrics(x, energy).items()}
         if self.guards_crossings:
             extra["tunnelling_halvings"] = (halvings or {}).get("tunnelling", 0)
         if self.redo_strain > 0:
