@@ -22,6 +22,7 @@ from taichi_cloth.config.scene import Scene
 from taichi_cloth.render.surfaces import (BodySurface, ClothEdges, ClothSurface, GroundSurface,
                                           PlateSurface)
 from taichi_cloth.render.texture import load_texture, sample_texture, texture_path
+from taichi_cloth.uploads import UploadBatch
 
 VULKAN_PACKAGES = "libvulkan1 mesa-vulkan-drivers"
 FILL_FRACTION = 1.0 / 3.0  # fill light intensity relative to the key light
@@ -87,7 +88,8 @@ class Renderer:
         position, lookat = np.array(config.camera_position), np.array(config.camera_lookat)
         key, fill = light_positions(position, lookat)
         self.lights = [(key, config.light), (fill, config.light * FILL_FRACTION)]
-        self.cloth = ClothSurface(garment, config.subdivision)
+        uploads = UploadBatch()  # every surface's fields filled in one launch, once all are built
+        self.cloth = ClothSurface(garment, config.subdivision, uploads)
         self.garment = garment
         self.edges = None  # the wireframe's lines, made when first asked for
         image_path = texture_path(scene)
@@ -96,17 +98,18 @@ class Renderer:
         else:
             self.cloth.set_colors(sample_texture(load_texture(image_path), self.cloth.uvs,
                                                  self.cloth.uv_footprint, config.texture_repeat))
-        self.body = BodySurface(body, config.body_color) if body is not None else None
+        self.body = BodySurface(body, config.body_color, uploads) if body is not None else None
         self.ground = None
         if config.ground:
             ground = scene.effects.get("ground")
-            self.ground = GroundSurface(ground.height if ground is not None else 0.0)
+            self.ground = GroundSurface(ground.height if ground is not None else 0.0, uploads)
             self.ground.shade(key, lambda normals, points: illumination(
                 normals, points, self.lights, config.ambient), config.background)
 
         support = scene.effects.get("support")
         self.plate = None if support is None else PlateSurface(
-            support.height, support.radius, support.plate_thickness, support.centre)
+            support.height, support.radius, support.plate_thickness, support.centre, uploads)
+        uploads.send()
 
         # last: nothing after it can fail unclosed
         self.window = open_window(width, height, visible, f"taichi_cloth: {scene.name}")

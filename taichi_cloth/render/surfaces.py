@@ -25,6 +25,7 @@ from taichi_cloth.body.capsules import DISPLAY_CAPSULE_NAMES
 from taichi_cloth.cloth.garment import Garment
 from taichi_cloth.cloth.topology import grid_triangles
 from taichi_cloth.gather import triangle_gather_lists
+from taichi_cloth.uploads import UploadBatch
 
 CAPSULE_SEGMENTS = 20  # vertices around a capsule
 CAPSULE_RINGS = 7  # latitude rings per hemisphere (pole to equator)
@@ -62,33 +63,47 @@ def spline_stencil(count: int, subdivision: int, periodic: bool):
     return position, index, catmull_rom_weights(position - base)
 
 
-def triangle_gather_fields(triangles: np.ndarray, vertex_count: int):
-    """Taichi fields of the triangles around each vertex (CSR start (V+1,), triangle (K,))."""
+def triangle_gather_fields(triangles: np.ndarray, vertex_count: int, uploads: UploadBatch):
+    """Taichi fields of the triangles around each vertex (CSR start (V+1,), triangle (K,)),
+    filled through ``uploads``."""
     start, item = triangle_gather_lists(triangles, vertex_count)
     start_field = ti.field(ti.i32, vertex_count + 1)
     item_field = ti.field(ti.i32, len(item))
-    start_field.from_numpy(start)
-    item_field.from_numpy(item)
+    uploads.add([(start_field, start), (item_field, item)])
     return start_field, item_field
 
 
 @ti.data_oriented
 class Surface:
     """A triangle mesh for GGUI: vertices [m], unit normals, colours and flat indices (f32/i32
-    fields), and the NumPy triangles (T, 3)."""
+    fields), and the NumPy triangles (T, 3).
 
-    def __init__(self, vertex_count: int, triangles: np.ndarray):
+    Its fields are filled from NumPy through ``uploads``: a renderer's batch, which sends every
+    surface's copies in one launch once they are all built (``from_numpy`` compiles a kernel
+    for each field: ~20 of them took ~2 s of ``render hula``'s start-up), or, without one, a
+    batch of the surface's own that its constructor sends (``_send_own``). Once sent, a copy
+    added to it is made at once."""
+
+    def __init__(self, vertex_count: int, triangles: np.ndarray,
+                 uploads: UploadBatch | None = None):
         self.vertex_count = vertex_count
         self.triangles = np.ascontiguousarray(triangles, dtype=np.int32)
+        self.uploads = UploadBatch() if uploads is None else uploads
+        self._sends_own = uploads is None
         self.vertices = ti.Vector.field(3, ti.f32, vertex_count)
         self.normals = ti.Vector.field(3, ti.f32, vertex_count)
         self.colors = ti.Vector.field(3, ti.f32, vertex_count)
         self.indices = ti.field(ti.i32, self.triangles.size)
-        self.indices.from_numpy(self.triangles.ravel())
+        self.uploads.add([(self.indices, self.triangles.ravel())])
+
+    def _send_own(self) -> None:
+        """The end of a constructor: send the surface's own batch (not a renderer's)."""
+        if self._sends_own:
+            self.uploads.send()
 
     def set_colors(self, colors: np.ndarray) -> None:
         """Per-vertex colours (V, 3) in [0, 1]."""
-        self.colors.from_numpy(np.ascontiguousarray(colors, dtype=np.float32))
+        self.uploads.add([(self.colors, colors)])
 
     def points(self) -> np.ndarray:
         """Vertex positions (V, 3) [m] as float64."""
@@ -102,7 +117,7 @@ class ClothSurface(Surface):
     smooth spline surface (16 taps); a mesh garment is drawn as it is (1 tap), split at its UV
     seams (``Garment.uv_layout``)."""
 
-    def __init__(self, garment: Garment, subdivision: int):
+    def __init__(self, garment: Garment, subdivision: int, uploads: UploadBatch | None = None):
         self.columns = self.rows = 0  # the render grid's size; none for a mesh garment
         if garment.is_grid:
             source, weight, triangles, self.uvs, self.uv_footprint, (self.columns, self.rows) = \
@@ -114,13 +129,13 @@ class ClothSurface(Surface):
             steps = np.abs(np.roll(corners, -1, axis=1) - corners).reshape(-1, 2)
             self.uv_footprint = tuple(np.mean(steps, axis=0))
         self.taps = source.shape[1]
-        super().__init__(len(source), triangles)
+        super().__init__(len(source), triangles, uploads)
         self.source = ti.field(ti.i32, (self.vertex_count, self.taps))
         self.weight = ti.field(ti.f32, (self.vertex_count, self.taps))
-        self.source.from_numpy(source.astype(np.int32))
-        self.weight.from_numpy(weight.astype(np.float32))
-        self.triangle_start, self.triangle_item = triangle_gather_fields(self.triangles,
-                                                                         self.vertex_count)
+        self.uploads.add([(self.source, source.astype(np.int32)), (self.weight, weight)])
+        self.triangle_start, self.triangle_item = triangle_gather_fields(
+            self.triangles, self.vertex_count, self.uploads)
+        self._send_own()
 
     @ti.kernel
     def update(self, x: ti.template()):
@@ -221,33 +236,32 @@ def capsule_colors(body, skin, direction: np.ndarray, ends: np.ndarray) -> np.nd
 class BodySurface(Surface):
     """The body's collision and display capsules as one mesh; ``update(pose)`` places them."""
 
-    def __init__(self, body, skin=(0.80, 0.58, 0.45)):
+    def __init__(self, body, skin=(0.80, 0.58, 0.45), uploads: UploadBatch | None = None):
         """body: a ``body.Body`` (or anything with its capsule attributes and ``pose``)."""
         direction, ends, template_triangles = capsule_template()
         self.template_count = len(ends)
         self.capsule_count = body.capsule_count + body.display_capsule_count
         offsets = np.arange(self.capsule_count)[:, None, None] * self.template_count
         super().__init__(self.capsule_count * self.template_count,
-                         (template_triangles[None] + offsets).reshape(-1, 3))
+                         (template_triangles[None] + offsets).reshape(-1, 3), uploads)
         self.body = body
         self.direction = ti.Vector.field(3, ti.f32, self.template_count)
         self.end = ti.field(ti.f32, self.template_count)
-        self.direction.from_numpy(direction.astype(np.float32))
-        self.end.from_numpy(ends.astype(np.float32))
         self.capsule_a = ti.Vector.field(3, ti.f32, self.capsule_count)
         self.capsule_b = ti.Vector.field(3, ti.f32, self.capsule_count)
         self.capsule_radius = ti.field(ti.f32, self.capsule_count)
-        self.capsule_radius.from_numpy(np.concatenate(
-            [body.capsule_radius, body.display_capsule_radius]).astype(np.float32))
+        self.uploads.add([(self.direction, direction), (self.end, ends), (
+            self.capsule_radius, np.concatenate([body.capsule_radius,
+                                                 body.display_capsule_radius]))])
         self.set_colors(capsule_colors(body, skin, direction, ends).reshape(-1, 3))
+        self._send_own()
 
     def update(self, t: float) -> None:
         """Place every capsule at the body's pose at time ``t`` [s]."""
         pose = self.body.pose(t)
-        self.capsule_a.from_numpy(np.concatenate(
-            [pose.capsule_a, pose.display_capsule_a]).astype(np.float32))
-        self.capsule_b.from_numpy(np.concatenate(
-            [pose.capsule_b, pose.display_capsule_b]).astype(np.float32))
+        ends_a = np.concatenate([pose.capsule_a, pose.display_capsule_a])
+        ends_b = np.concatenate([pose.capsule_b, pose.display_capsule_b])
+        self.uploads.add([(self.capsule_a, ends_a), (self.capsule_b, ends_b)])
         self.place()
 
     @ti.kernel
@@ -290,34 +304,37 @@ class GroundSurface(Surface):
     (A, R, H_A = ``SHADOW_AMBIENT``, ``_RADIUS``, ``_HEIGHT``); the floor keeps
     1 − ``SHADOW_STRENGTH`` · max o of its colour."""
 
-    def __init__(self, height: float):
+    def __init__(self, height: float, uploads: UploadBatch | None = None):
         radius = np.concatenate([np.arange(0.0, GROUND_FINE_RADIUS, GROUND_FINE_STEP),
                                  GROUND_RINGS])
         azimuth = 2 * np.pi * np.arange(GROUND_SEGMENTS) / GROUND_SEGMENTS
         points = np.stack([radius[:, None] * np.cos(azimuth)[None, :],
                            np.full((len(radius), GROUND_SEGMENTS), height),
                            radius[:, None] * np.sin(azimuth)[None, :]], axis=-1).reshape(-1, 3)
-        super().__init__(len(points), grid_triangles(GROUND_SEGMENTS, len(radius), periodic=True))
+        super().__init__(len(points), grid_triangles(GROUND_SEGMENTS, len(radius), periodic=True),
+                         uploads)
         s = np.clip((radius - GROUND_FADE[0]) / (GROUND_FADE[1] - GROUND_FADE[0]), 0, 1)
         self.fade = np.repeat(s * s * (3 - 2 * s), GROUND_SEGMENTS)
         self.up = np.tile([0.0, 1.0, 0.0], (len(points), 1))
         self.height = height
         self.shaded_count = GROUND_SEGMENTS * int(np.sum(radius < GROUND_FINE_RADIUS))
         self.unshadowed = ti.Vector.field(3, ti.f32, len(points))
-        self.vertices.from_numpy(points.astype(np.float32))
+        self.host_points = points.astype(np.float32).astype(np.float64)  # the vertices' values
+        self.uploads.add([(self.vertices, points)])
+        self._send_own()
 
     def shade(self, key_light: np.ndarray, lighting, background) -> None:
         """Normals and colours for a renderer whose lighting factor for unit normals and points
         (V, 3) is ``lighting(normals, points)`` (V,) and whose key light is at ``key_light`` [m]."""
-        points = self.points()
+        points = self.host_points
         toward_key = key_light - points
         toward_key /= np.linalg.norm(toward_key, axis=1, keepdims=True)
-        self.normals.from_numpy(toward_key.astype(np.float32))
         fade = self.fade[:, None]
         sunlit = lighting(self.up, np.zeros_like(points))[:, None]
         seen = (1 - fade) * np.array(GROUND_COLOR) * sunlit + fade * np.asarray(background)
-        self.set_colors(np.clip(seen / lighting(toward_key, points)[:, None], 0, 1))
-        self.unshadowed.copy_from(self.colors)
+        colors = np.clip(seen / lighting(toward_key, points)[:, None], 0, 1)
+        self.uploads.add([(self.normals, toward_key), (self.colors, colors),
+                          (self.unshadowed, colors)])
 
     @ti.kernel
     def cast_shadows(self, body: ti.template()):
@@ -354,7 +371,8 @@ class PlateSurface(Surface):
     ``centre`` = (x, z) [m], grey as a prop; its top, side and bottom keep vertices of their own
     so that each face has its own normal."""
 
-    def __init__(self, height: float, radius: float, thickness: float, centre):
+    def __init__(self, height: float, radius: float, thickness: float, centre,
+                 uploads: UploadBatch | None = None):
         azimuth = 2 * np.pi * np.arange(PLATE_SEGMENTS) / PLATE_SEGMENTS
         rim = np.stack([np.cos(azimuth), np.zeros(PLATE_SEGMENTS), np.sin(azimuth)], axis=1)
         axis = np.array([centre[0], 0.0, centre[1]])
@@ -374,7 +392,7 @@ class PlateSurface(Surface):
             np.stack([1 + s + following, 1 + 2 * s + following, 1 + 2 * s + ring], axis=1),
             np.stack([np.full(s, 1 + 3 * s), 1 + 3 * s + 1 + ring, 1 + 3 * s + 1 + following],
                      axis=1)])
-        super().__init__(len(points), triangles)
-        self.vertices.from_numpy(points.astype(np.float32))
-        self.normals.from_numpy(normals.astype(np.float32))
+        super().__init__(len(points), triangles, uploads)
+        self.uploads.add([(self.vertices, points), (self.normals, normals)])
         self.set_colors(np.broadcast_to(PROP_COLOR, (len(points), 3)))
+        self._send_own()
