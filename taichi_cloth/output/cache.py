@@ -6,9 +6,10 @@ again without simulating (``render --from-cache DIR``).
 - ``scene.json``: the format version, the scene file's path and its TOML tables after every
   ``--set`` (``Scene.document``: the resolved scene, from which ``config.scene`` builds the same
   ``Scene`` again), the particle count and the frames per second;
-- ``frame_NNNNN.npz`` per frame (NumPy, compressed): its time ``t`` [s] and the particles'
-  ``positions`` [m] and ``velocities`` [m/s] in the simulation's precision (float32 for f32
-  scenes, so a replay draws exactly what the run drew).
+- ``frame_NNNNN.npz`` per frame (NumPy, not compressed: ``hula``'s positions and velocities
+  deflate by 8 % at 9× the time, 2.2 ms a frame against 0.24 ms): its time ``t`` [s] and the
+  particles' ``positions`` [m] and ``velocities`` [m/s] in the simulation's precision (float32
+  for f32 scenes, so a replay draws exactly what the run drew).
 
 A frame's file is written whole or not at all (``files.atomic_path``) as soon as the frame is
 done, so the cache can be read while the run goes on, and a resumed run adds the frames it
@@ -49,8 +50,7 @@ class CacheWriter:
         """Frame ``frame`` at time ``t`` [s]: positions [m] and velocities [m/s] (N, 3)."""
         with atomic_path(frame_path(self.directory, frame)) as temporary:
             with open(temporary, "wb") as handle:
-                np.savez_compressed(handle, t=np.float64(t), positions=positions,
-                                    velocities=velocities)
+                np.savez(handle, t=np.float64(t), positions=positions, velocities=velocities)
 
 
 def read_cache(directory: Path) -> tuple[Scene, list[int]]:
