@@ -49,6 +49,8 @@ def test_a_state_set_moves_the_bits_to_numpy_from_numpy_and_copy_from_move():
             assert np.array_equal(held, array)
     with pytest.raises(ValueError, match="not one of its members"):
         states.read(reference)
+    with pytest.raises(ValueError, match="shapes"):  # nothing read past a short array's end
+        states.write(states.members[0], x[:6], v[:6])
 
 
 def test_matrix_and_zero_dimensional_fields_are_filled_component_by_component():

@@ -151,7 +151,6 @@ def run_in_folder(scene: Scene, frame_count: int, folder: OwnedFolder, quiet: bo
 
         def on_frame(frame, metrics):
             t = simulation.frame_time(frame)
-            snapshot = simulation.snapshot(effects=True)
             started = time.perf_counter()
             if renderer is not None:
                 image = renderer.draw(simulation.state_in.x, t)
@@ -159,6 +158,7 @@ def run_in_folder(scene: Scene, frame_count: int, folder: OwnedFolder, quiet: bo
                 if append_video is not None:
                     append_video(image)
             rendered = time.perf_counter()
+            snapshot = simulation.snapshot(effects=True)  # the frame's one read of the state
             for mesh, points in series:
                 mesh.append(frame, t, points(t, snapshot.positions))
             real = simulation.model.numpy_real  # the cache keeps the simulation's own values

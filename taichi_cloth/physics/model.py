@@ -55,12 +55,13 @@ HOST_VECTORS = ti.types.ndarray(dtype=ti.types.vector(3, ti.f64), ndim=1)  # (N,
 
 @ti.data_oriented
 class StateSet:
-    """The states a simulation keeps (``members``: the two its integrator swaps and a backup),
-    read to the host, written from it and copied one into another by one kernel each,
-    whichever member it is given. Taichi compiles its own kernel for each field that
-    ``to_numpy``, ``from_numpy`` or ``copy_from`` is given (~0.1 s each on the 2-core machine):
-    per field of each member, that was ~14 compiles a simulation, 1,151 of the test suite's
-    2,363 (docs/performance.md, "Kernels compiled per field")."""
+    """States allocated together (``members``; a simulation's: the two its integrator swaps
+    and the backup of a redone frame), read to the host, written from it and copied one into
+    another by one kernel each, whichever member it is given. Taichi compiles its own kernel
+    for each field that ``to_numpy``, ``from_numpy`` or ``copy_from`` is given (~0.1 s each on
+    the 2-core machine): per field of each state, that was ~14 compiles a simulation, and such
+    kernels were 1,361 of the test suite's 2,363 compiles (docs/performance.md, "Fewer kernels
+    to compile")."""
 
     def __init__(self, members: list[State]):
         self.members = tuple(members)
@@ -81,6 +82,10 @@ class StateSet:
     def write(self, state: State, x: np.ndarray, v: np.ndarray) -> None:
         """Set ``state`` to positions x [m] and velocities v [m/s] (N, 3), rounded to the
         fields' type to nearest (as NumPy's ``astype`` rounds)."""
+        expected = (self.particle_count, 3)
+        if np.shape(x) != expected or np.shape(v) != expected:
+            raise ValueError(f"StateSet.write: arrays of shapes {np.shape(x)} and {np.shape(v)} "
+                             f"for states of {expected}")
         self._write(self._slot(state), np.ascontiguousarray(x, dtype=np.float64),
                     np.ascontiguousarray(v, dtype=np.float64))
 

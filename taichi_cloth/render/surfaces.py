@@ -81,8 +81,8 @@ class Surface:
     Its fields are filled from NumPy through ``uploads``: a renderer's batch, which sends every
     surface's copies in one launch once they are all built (``from_numpy`` compiles a kernel
     for each field: ~20 of them took ~2 s of ``render hula``'s start-up), or, without one, a
-    batch of the surface's own that its constructor sends (``_send_own``). Once sent, a copy
-    added to it is made at once."""
+    batch of the surface's own, which every subclass's constructor sends when its fields are
+    allocated (``_send_own``, its last line). Once sent, a copy added to it is made at once."""
 
     def __init__(self, vertex_count: int, triangles: np.ndarray,
                  uploads: UploadBatch | None = None):
