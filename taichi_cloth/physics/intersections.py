@@ -11,7 +11,9 @@ an edge of the other, or a vertex of one inside the other). Touching counts as i
 Broad phase: a uniform grid whose cell is the mean side of the triangles' bounding boxes (doubled
 while the boxes would take more than ``FILINGS_PER_TRIANGLE`` cells each on average). Each box is
 filed under every cell it overlaps (a hashed table, counted, prefix-summed and filled in one
-Taichi kernel), each triangle walks the triangles of higher index filed in its cells, and a pair
+Taichi kernel; filed serially, so each bucket lists its triangles in ascending order), each
+triangle walks the triangles of higher index filed in its cells (from a bucket's end down to its
+own index), and a pair
 whose boxes overlap is tested in the first cell both span, so once. (Cells of the largest box
 side, each triangle filed once and meeting the 13 cells that follow its own, walked ~40 times as
 many pairs where the mesh is fine.) The count is an integer sum, the same in any order.
@@ -210,6 +212,7 @@ def count_intersecting_pairs(x: ti.types.ndarray(dtype=vec3, ndim=1),
     for b in range(bucket_count):
         bucket_start[b + 1] = bucket_start[b] + bucket_fill[b]
         bucket_fill[b] = bucket_start[b]
+    ti.loop_config(serialize=True)  # each bucket's triangles in ascending order, for the walk
     for t in range(triangles.shape[0]):
         first, last = cells_spanned(low[t], high[t], cell_size[0])
         for cell in ti.grouped(ti.ndrange((first[0], last[0] + 1), (first[1], last[1] + 1),
@@ -224,10 +227,14 @@ def count_intersecting_pairs(x: ti.types.ndarray(dtype=vec3, ndim=1),
         for cell in ti.grouped(ti.ndrange((first[0], last[0] + 1), (first[1], last[1] + 1),
                                           (first[2], last[2] + 1))):
             bucket = hash_cell(cell, bucket_count)
-            for k in range(bucket_start[bucket], bucket_start[bucket + 1]):
+            end = bucket_start[bucket + 1]
+            for j in range(end - bucket_start[bucket]):  # the bucket's triangles above a, down
+                k = end - 1 - j
                 b = filed[k]
+                if b <= a:
+                    break
                 # nested tests: a kernel's ``and`` evaluates both sides
-                if b > a and (filed_cell[k] == cell).all():
+                if (filed_cell[k] == cell).all():
                     if (low[a] <= high[b]).all() and (low[b] <= high[a]).all():
                         other_first, _ = cells_spanned(low[b], high[b], cell_size[0])
                         if (ti.max(first, other_first) == cell).all():  # the pair's first cell
