@@ -13,10 +13,10 @@ while the boxes would take more than ``FILINGS_PER_TRIANGLE`` cells each on aver
 filed under every cell it overlaps (a hashed table, counted, prefix-summed and filled in one
 Taichi kernel; filed serially, so each bucket lists its triangles in ascending order), each
 triangle walks the triangles of higher index filed in its cells (from a bucket's end down to its
-own index), and a pair
-whose boxes overlap is tested in the first cell both span, so once. (Cells of the largest box
-side, each triangle filed once and meeting the 13 cells that follow its own, walked ~40 times as
-many pairs where the mesh is fine.) The count is an integer sum, the same in any order.
+own index), and a pair whose boxes overlap is tested in the first cell both span, so once.
+(Cells of the largest box side, each triangle filed once and meeting the 13 cells that follow its
+own, walked ~40 times as many pairs where the mesh is fine.) The count is an integer sum, the same
+in any order.
 """
 
 import numpy as np
