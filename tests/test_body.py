@@ -1,5 +1,7 @@
 """Tests of the kinematic dancer body (taichi_cloth.body): layouts, rest pose, motion, velocities."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -183,6 +185,22 @@ def test_velocities_match_central_differences(capsules, t):
     local = (shoulders - now.chest_position) @ now.chest_rotation
     np.testing.assert_allclose(local, (body.pose(0.0).display_capsule_a[2:4]
                                        - body.pose(0.0).chest_position), atol=1e-12)
+
+
+@pytest.mark.parametrize("motion", ["still", "hula", "sway", "twirl", "walk"])
+def test_poses_at_many_times_are_each_time_posed_alone(motion):
+    """``poses`` evaluates the skeleton over all its times at once (the rig's samples of a
+    frame): each pose is the one ``pose`` gives at its time alone, before the dance, during the
+    ease-in and in every piece of the twirl's spin, whatever the other times."""
+    body = Body(motion=motion, tempo=97.0, amplitude=1.3, scale=1.1, ease_in=1.0)
+    times = np.concatenate([[-0.2, 0.0, 0.5, 1.0], np.linspace(1.1, 6.3, 23)])
+    together = body.poses(times[::-1])[::-1]
+    for t, pose in zip(times, together):
+        alone = body.pose(t)
+        assert pose.time == t
+        for field in dataclasses.fields(pose):
+            np.testing.assert_allclose(getattr(pose, field.name), getattr(alone, field.name),
+                                       rtol=1e-12, atol=1e-12, err_msg=f"{field.name} at {t}")
 
 
 @pytest.mark.parametrize("t", [1.0, 1.37, 2.9, 4.44, 6.0])

@@ -84,8 +84,8 @@ class CapsuleLayout:
         return start, start + (covered_end - start) / self.fraction[last, 1:]
 
     def tile(self, bone_start, bone_end):
-        """(capsule_a, capsule_b), each (C, 3), of bones from ``bone_start`` to ``bone_end``
-        (each (len(BONES), 3), in ``BONES`` order; complex values pass through)."""
-        vector = (bone_end - bone_start)[self.bone]
-        start = bone_start[self.bone]
+        """(capsule_a, capsule_b), each (..., C, 3), of bones from ``bone_start`` to ``bone_end``
+        (each (..., len(BONES), 3), in ``BONES`` order; complex values pass through)."""
+        vector = (bone_end - bone_start)[..., self.bone, :]
+        start = bone_start[..., self.bone, :]
         return start + self.fraction[:, :1] * vector, start + self.fraction[:, 1:] * vector

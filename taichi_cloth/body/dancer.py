@@ -65,6 +65,8 @@ import numpy as np
 
 from taichi_cloth.body.capsules import (CAPSULE_LAYOUT_NAMES, DISPLAY_CAPSULE_NAMES,
                                         DISPLAY_CAPSULE_RADIUS, CapsuleLayout)
+from taichi_cloth.body.frames import (angular_velocity, rotation_x, rotation_y, rotation_z,
+                                      row_dot, turned, vector)
 from taichi_cloth.body.twirl import twirl_turns
 from taichi_cloth.body.hula import (BACK_COUNTER, COMPLEX_STEP, FOOT_LIFT, HIP_CIRCLE_BEATS,
                                    HIP_CIRCLE_RADIUS, HIP_SWAY, KAHOLO_HARMONICS, LOOP_BEATS,
@@ -103,27 +105,16 @@ _UPPER_ARM_LOCAL = (0.17, -0.20, 0.08)  # left shoulder -> elbow, arms held out 
 _FOREARM_LOCAL = (0.13, -0.03, 0.20)  # left elbow -> wrist
 _FOOT_WORLD = (0.0, -0.04, 0.14)  # ankle -> toe, feet face +z
 
-def _rotation_x(angle):
-    """Rotation matrix about +x by ``angle`` (rad)."""
-    c, s = np.cos(angle), np.sin(angle)
-    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
-
-
-def _rotation_y(angle):
-    """Rotation matrix about +y by ``angle`` (rad)."""
-    c, s = np.cos(angle), np.sin(angle)
-    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
-
-
-def _rotation_z(angle):
-    """Rotation matrix about +z by ``angle`` (rad)."""
-    c, s = np.cos(angle), np.sin(angle)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
-def _row_dot(u, v):
-    """Row-wise dot product of (N, 3) arrays without conjugation (complex-step safe)."""
-    return np.sum(u * v, axis=-1)
+_MIRROR = np.array([-1.0, 1.0, 1.0])  # left -> right
+_HIP_JOINTS = np.array([HIP_JOINT_LOCAL, _MIRROR * HIP_JOINT_LOCAL])  # pelvis frame, (2, 3)
+_PELVIS_SEGMENT_LOCAL = np.array(PELVIS_CENTRE_LOCAL) + np.array(
+    [[-PELVIS_HALF_WIDTH, 0.0, 0.0], [PELVIS_HALF_WIDTH, 0.0, 0.0]])  # pelvis frame, (2, 3)
+_SHOULDERS = np.array([_SHOULDER_LOCAL, _MIRROR * _SHOULDER_LOCAL])  # chest frame, (2, 3)
+_ELBOWS = _SHOULDERS + np.array([_UPPER_ARM_LOCAL, _MIRROR * _UPPER_ARM_LOCAL])
+_WRISTS = _ELBOWS + np.array([_FOREARM_LOCAL, _MIRROR * _FOREARM_LOCAL])
+# the display capsules carried by the chest frame: neck, head, both upper arms, both forearms
+_CHEST_DISPLAY_A = np.array([(0.0, 0.0, 0.0), _HEAD_SEGMENT_LOCAL[0], *_SHOULDERS, *_ELBOWS])
+_CHEST_DISPLAY_B = np.array([_NECK_TOP_LOCAL, _HEAD_SEGMENT_LOCAL[1], *_ELBOWS, *_WRISTS])
 
 
 def _leg_reach() -> float:
@@ -136,27 +127,29 @@ def _leg_reach() -> float:
 
 
 def _leg_inverse_kinematics(hip, foot_target, knee_direction):
-    """Two-bone IK: knee and ankle (N, 3) for hips and ankle targets (N, 3), metres at scale 1.
+    """Two-bone IK: knees and ankles (..., N, 3) for hips and ankle targets (..., N, 3), metres
+    at scale 1.
 
     With d = target - hip, D = |d| softly limited to the reach D_max
         D' = D_max - w softplus((D_max - D) / w),   softplus(x) = log(1 + e^x),
     the knee lies a = (L1^2 - L2^2 + D'^2) / (2 D') along d/D and h = sqrt(L1^2 - a^2)
-    towards ``knee_direction`` (3,) made perpendicular to d; the ankle is hip + D' d/D.
+    towards ``knee_direction`` (..., 3) made perpendicular to d; the ankle is hip + D' d/D.
     The thigh |knee - hip| = L1 and shin |ankle - knee| = L2 hold exactly.
     """
     offset = foot_target - hip
-    distance = np.sqrt(_row_dot(offset, offset))
-    axis = offset / distance[:, None]
+    distance = np.sqrt(row_dot(offset, offset))
+    axis = offset / distance[..., None]
     reach = _leg_reach()
     slack = (reach - distance) / LEG_REACH_SOFTNESS
     shift = np.maximum(slack.real, 0.0)  # log(1 + e^x) = m + log(e^-m + e^(x-m)) for any m
     reach_distance = reach - LEG_REACH_SOFTNESS * (shift + np.log(np.exp(-shift) + np.exp(slack - shift)))
     along = (THIGH_LENGTH**2 - SHIN_LENGTH**2 + reach_distance**2) / (2.0 * reach_distance)
     across = np.sqrt(THIGH_LENGTH**2 - along**2)
-    bend = knee_direction - (axis @ knee_direction)[:, None] * axis
-    bend = bend / np.sqrt(_row_dot(bend, bend))[:, None]
-    knee = hip + along[:, None] * axis + across[:, None] * bend
-    ankle = hip + reach_distance[:, None] * axis
+    direction = knee_direction[..., None, :]
+    bend = direction - row_dot(axis, direction)[..., None] * axis
+    bend = bend / np.sqrt(row_dot(bend, bend))[..., None]
+    knee = hip + along[..., None] * axis + across[..., None] * bend
+    ankle = hip + reach_distance[..., None] * axis
     return knee, ankle
 
 
@@ -187,14 +180,6 @@ class BodyPose:
     chest_rotation: np.ndarray  # (3, 3) the upper body's local -> world rotation
     chest_velocity: np.ndarray  # (3,) m/s
     chest_angular_velocity: np.ndarray  # (3,) world frame, rad/s
-
-
-def angular_velocity(rotation: np.ndarray, rotation_rate: np.ndarray) -> np.ndarray:
-    """ω [rad/s] (world frame) of a frame turning as R(t): the axial vector of the skew
-    matrix dR/dt·Rᵀ = [ω]×."""
-    spin = rotation_rate @ rotation.T
-    return 0.5 * np.array([spin[2, 1] - spin[1, 2], spin[0, 2] - spin[2, 0],
-                           spin[1, 0] - spin[0, 1]])
 
 
 class Body:
@@ -264,46 +249,44 @@ class Body:
 
     def pose(self, t: float) -> BodyPose:
         """The body at time ``t`` (s), with exact (complex-step) velocities."""
+        return self.poses([t])[0]
+
+    def poses(self, times) -> list[BodyPose]:
+        """The body at each of ``times`` (s), evaluated together (one skeleton of arrays over
+        the times), with exact (complex-step) velocities."""
+        times = np.asarray(times, dtype=float)
         (capsule_a, capsule_b, display_a, display_b, pelvis_position, pelvis_rotation,
-         chest_position, chest_rotation) = self._skeleton(complex(t, COMPLEX_STEP))
-        return BodyPose(
-            time=float(t),
-            capsule_a=self.scale * capsule_a.real,
-            capsule_b=self.scale * capsule_b.real,
-            capsule_velocity_a=self.scale * capsule_a.imag / COMPLEX_STEP,
-            capsule_velocity_b=self.scale * capsule_b.imag / COMPLEX_STEP,
-            display_capsule_a=self.scale * display_a.real,
-            display_capsule_b=self.scale * display_b.real,
-            pelvis_position=self.scale * pelvis_position.real,
-            pelvis_rotation=pelvis_rotation.real,
-            pelvis_velocity=self.scale * pelvis_position.imag / COMPLEX_STEP,
-            pelvis_angular_velocity=angular_velocity(pelvis_rotation.real,
-                                                     pelvis_rotation.imag / COMPLEX_STEP),
-            chest_position=self.scale * chest_position.real,
-            chest_rotation=chest_rotation.real,
-            chest_velocity=self.scale * chest_position.imag / COMPLEX_STEP,
-            chest_angular_velocity=angular_velocity(chest_rotation.real,
-                                                    chest_rotation.imag / COMPLEX_STEP),
-        )
+         chest_position, chest_rotation) = self._skeleton(times + 1j * COMPLEX_STEP)
+        scale, step = self.scale, COMPLEX_STEP
+        pelvis_spin = angular_velocity(pelvis_rotation.real, pelvis_rotation.imag / step)
+        chest_spin = angular_velocity(chest_rotation.real, chest_rotation.imag / step)
+        parts = (scale * capsule_a.real, scale * capsule_b.real, scale * capsule_a.imag / step,
+                 scale * capsule_b.imag / step, scale * display_a.real, scale * display_b.real,
+                 scale * pelvis_position.real, pelvis_rotation.real,
+                 scale * pelvis_position.imag / step, pelvis_spin, scale * chest_position.real,
+                 chest_rotation.real, scale * chest_position.imag / step, chest_spin)
+        return [BodyPose(float(t), *(part[k] for part in parts)) for k, t in enumerate(times)]
 
     def _envelope(self, t):
         """Ease-in factor E(t) of the dance: 0 at t <= 0, 1 at t >= ease_in, C2 quintic between."""
-        if self.ease_in == 0.0 or t.real >= self.ease_in:
-            return 1.0
-        if t.real <= 0.0:
-            return 0.0
-        return smoothstep(t / self.ease_in)
+        if self.ease_in == 0.0:
+            return np.ones_like(t)
+        return np.where(t.real >= self.ease_in, 1.0,
+                        np.where(t.real <= 0.0, 0.0, smoothstep(t / self.ease_in)))
 
     def _kaholo(self, beat):
-        """Unscaled kaholo channels at ``beat`` (see ``hula.kaholo_series``): steps of the left and
-        right foot (towards her right), their lifts (0..1) and the weight side (+1 left)."""
-        harmonic = np.arange(1, KAHOLO_HARMONICS + 1) * (2.0 * np.pi * beat / LOOP_BEATS)
-        return (self._kaholo_constant
-                + self._kaholo_cosine @ np.cos(harmonic) + self._kaholo_sine @ np.sin(harmonic))
+        """Unscaled kaholo channels at each ``beat`` (see ``hula.kaholo_series``): steps of the
+        left and right foot (towards her right), their lifts (0..1) and the weight side (+1
+        left), each shaped like ``beat``."""
+        harmonic = np.multiply.outer(2.0 * np.pi * beat / LOOP_BEATS,
+                                     np.arange(1, KAHOLO_HARMONICS + 1))
+        channels = (self._kaholo_constant + np.cos(harmonic) @ self._kaholo_cosine.T
+                    + np.sin(harmonic) @ self._kaholo_sine.T)
+        return tuple(np.moveaxis(channels, -1, 0))
 
     def _skeleton(self, t):
-        """Capsule, display, pelvis and chest (neck base, R_back) geometry at (complex) time
-        ``t``, metres at scale 1.
+        """Capsule, display, pelvis and chest (neck base, R_back) geometry at (complex) times
+        ``t`` (T,), metres at scale 1, each with a leading axis of T.
 
         With the beat count beat = tempo t / 60, the loop phase phi = 2 pi beat / LOOP_BEATS,
         the circle phase psi = 2 pi beat / HIP_CIRCLE_BEATS, the step gain s = E(t) and the
@@ -349,54 +332,53 @@ class Body:
             circle = 1.0
 
         hip_x = HIP_JOINT_LOCAL[0]
-        foot_target = np.array([
-            [hip_x - step_gain * STEP_LENGTH * step_left, ANKLE_HEIGHT + step_gain * FOOT_LIFT * lift_left,
-             step_gain * stride],
-            [-hip_x - step_gain * STEP_LENGTH * step_right, ANKLE_HEIGHT + step_gain * FOOT_LIFT * lift_right,
-             -step_gain * stride],
-        ])
+        foot_target = np.stack([
+            vector(hip_x - step_gain * STEP_LENGTH * step_left,
+                    ANKLE_HEIGHT + step_gain * FOOT_LIFT * lift_left, step_gain * stride),
+            vector(-hip_x - step_gain * STEP_LENGTH * step_right,
+                    ANKLE_HEIGHT + step_gain * FOOT_LIFT * lift_right, -step_gain * stride),
+        ], axis=-2)
         pelvis_shift_x = sway_gain * (sway * weight_side
                                       + circle * HIP_CIRCLE_RADIUS * np.cos(circle_phase))
         pelvis_shift_z = sway_gain * circle * HIP_CIRCLE_RADIUS * np.sin(circle_phase)
         pelvis_sink = sway_gain * (self.amplitude * sink + bob) + step_gain * reach_sink
-        pelvis_position = np.array([
-            0.5 * (foot_target[0, 0] + foot_target[1, 0]) + pelvis_shift_x,
+        pelvis_position = vector(
+            0.5 * (foot_target[..., 0, 0] + foot_target[..., 1, 0]) + pelvis_shift_x,
             WAIST_HEIGHT - pelvis_sink,
             pelvis_shift_z,
-        ])
-        pelvis_rotation = (_rotation_y(sway_gain * (PELVIS_YAW * np.sin(circle_phase) + turn))
-                           @ _rotation_z(sway_gain * PELVIS_ROLL * weight_side)
-                           @ _rotation_x(-sway_gain * PELVIS_PITCH * np.sin(circle_phase)))
+        )
+        pelvis_rotation = (rotation_y(sway_gain * (PELVIS_YAW * np.sin(circle_phase) + turn))
+                           @ rotation_z(sway_gain * PELVIS_ROLL * weight_side)
+                           @ rotation_x(-sway_gain * PELVIS_PITCH * np.sin(circle_phase)))
 
-        mirror = np.array([-1.0, 1.0, 1.0])  # left -> right
-        hip = pelvis_position + np.array([HIP_JOINT_LOCAL, mirror * HIP_JOINT_LOCAL]) @ pelvis_rotation.T
-        knee, ankle = _leg_inverse_kinematics(hip, foot_target, pelvis_rotation[:, 2])
+        hip = pelvis_position[..., None, :] + turned(_HIP_JOINTS, pelvis_rotation)
+        knee, ankle = _leg_inverse_kinematics(hip, foot_target, pelvis_rotation[..., :, 2])
 
-        back_rotation = (_rotation_z(np.arcsin(BACK_COUNTER * pelvis_shift_x / BACK_LENGTH))
-                         @ _rotation_x(np.arcsin(-BACK_COUNTER * pelvis_shift_z / BACK_LENGTH)))
-        neck_base = pelvis_position + BACK_LENGTH * back_rotation[:, 1]
-        pelvis_half_segment = np.array([[-PELVIS_HALF_WIDTH, 0.0, 0.0], [PELVIS_HALF_WIDTH, 0.0, 0.0]])
-        pelvis_segment = pelvis_position + (np.array(PELVIS_CENTRE_LOCAL) + pelvis_half_segment) @ pelvis_rotation.T
-
-        shoulder = np.array([_SHOULDER_LOCAL, mirror * _SHOULDER_LOCAL])
-        shoulder_world = neck_base + shoulder @ back_rotation.T
-        bone_start = np.stack([pelvis_segment[0], pelvis_position, hip[0], hip[1], knee[0], knee[1],
-                               shoulder_world[0]])
-        bone_end = np.stack([pelvis_segment[1], neck_base, knee[0], knee[1], ankle[0], ankle[1],
-                             shoulder_world[1]])
+        back_rotation = (rotation_z(np.arcsin(BACK_COUNTER * pelvis_shift_x / BACK_LENGTH))
+                         @ rotation_x(np.arcsin(-BACK_COUNTER * pelvis_shift_z / BACK_LENGTH)))
+        neck_base = pelvis_position + BACK_LENGTH * back_rotation[..., :, 1]
+        pelvis_segment = pelvis_position[..., None, :] + turned(_PELVIS_SEGMENT_LOCAL,
+                                                                 pelvis_rotation)
+        shoulder_world = neck_base[..., None, :] + turned(_SHOULDERS, back_rotation)
+        bone_start = np.stack([pelvis_segment[..., 0, :], pelvis_position, hip[..., 0, :],
+                               hip[..., 1, :], knee[..., 0, :], knee[..., 1, :],
+                               shoulder_world[..., 0, :]], axis=-2)
+        bone_end = np.stack([pelvis_segment[..., 1, :], neck_base, knee[..., 0, :],
+                             knee[..., 1, :], ankle[..., 0, :], ankle[..., 1, :],
+                             shoulder_world[..., 1, :]], axis=-2)
         capsule_a, capsule_b = self.layout.tile(bone_start, bone_end)
 
-        elbow = shoulder + np.array([_UPPER_ARM_LOCAL, mirror * _UPPER_ARM_LOCAL])
-        wrist = elbow + np.array([_FOREARM_LOCAL, mirror * _FOREARM_LOCAL])
-        chest_local_a = np.array([(0.0, 0.0, 0.0), _HEAD_SEGMENT_LOCAL[0], *shoulder, *elbow])
-        chest_local_b = np.array([_NECK_TOP_LOCAL, _HEAD_SEGMENT_LOCAL[1], *elbow, *wrist])
-        display_a = np.concatenate([neck_base + chest_local_a @ back_rotation.T, ankle])
-        display_b = np.concatenate([neck_base + chest_local_b @ back_rotation.T, ankle + _FOOT_WORLD])
+        display_a = np.concatenate([neck_base[..., None, :] + turned(_CHEST_DISPLAY_A, back_rotation),
+                                    ankle], axis=-2)
+        display_b = np.concatenate([neck_base[..., None, :] + turned(_CHEST_DISPLAY_B, back_rotation),
+                                    ankle + _FOOT_WORLD], axis=-2)
         if self.motion == "twirl":
-            spin = _rotation_y(2.0 * np.pi * twirl_turns(beat, self.amplitude))
-            capsule_a, capsule_b = capsule_a @ spin.T, capsule_b @ spin.T
-            display_a, display_b = display_a @ spin.T, display_b @ spin.T
-            pelvis_position, pelvis_rotation = spin @ pelvis_position, spin @ pelvis_rotation
-            neck_base, back_rotation = spin @ neck_base, spin @ back_rotation
+            spin = rotation_y(2.0 * np.pi * twirl_turns(beat, self.amplitude))
+            capsule_a, capsule_b = turned(capsule_a, spin), turned(capsule_b, spin)
+            display_a, display_b = turned(display_a, spin), turned(display_b, spin)
+            pelvis_position, pelvis_rotation = (turned(pelvis_position[..., None, :], spin)[..., 0, :],
+                                                spin @ pelvis_rotation)
+            neck_base, back_rotation = (turned(neck_base[..., None, :], spin)[..., 0, :],
+                                        spin @ back_rotation)
         return (capsule_a, capsule_b, display_a, display_b, pelvis_position, pelvis_rotation,
                 neck_base, back_rotation)

@@ -38,8 +38,8 @@ import numpy as np
 
 from taichi_cloth.body.capsules import DISPLAY_CAPSULE_RADIUS, CapsuleLayout
 from taichi_cloth.body.dancer import (ANKLE_HEIGHT, HIP_JOINT_LOCAL, PELVIS_CENTRE_LOCAL,
-                                      PELVIS_HALF_WIDTH, SHIN_LENGTH, THIGH_LENGTH, BodyPose,
-                                      angular_velocity)
+                                      PELVIS_HALF_WIDTH, SHIN_LENGTH, THIGH_LENGTH, BodyPose)
+from taichi_cloth.body.frames import angular_velocity
 from taichi_cloth.body.hula import smoothstep
 from taichi_cloth.body.spline import CubicSpline
 from taichi_cloth.errors import InputError
@@ -260,6 +260,10 @@ class MocapBody:
         end = np.stack([pelvis[1], joints[index("neck")], knee[0], knee[1], ankle[0], ankle[1],
                         shoulder[1]])
         return start, end, waist
+
+    def poses(self, times) -> list[BodyPose]:
+        """The body at each of ``times`` [s] (``pose`` at each)."""
+        return [self.pose(float(t)) for t in times]
 
     def pose(self, t: float) -> BodyPose:
         """The body at time ``t`` [s], velocities from the spline's derivatives."""

@@ -32,6 +32,10 @@ class Bar:
         half = half_length * scale * np.array(axis)
         self.ends = np.array([middle - half, middle + half])
 
+    def poses(self, times) -> list[BodyPose]:
+        """The prop at each of ``times`` [s] (it never moves)."""
+        return [self.pose(float(t)) for t in times]
+
     def pose(self, t: float) -> BodyPose:
         ends = self.ends
         still, none = np.zeros((1, 3)), np.zeros((0, 3))

@@ -34,20 +34,18 @@ def smoothstep_integral(s):
 
 
 def twirl_turns(beat, amplitude: float = 1.0):
-    """The dancer's yaw [turns] at (complex) ``beat``: ``amplitude`` × the module's profile,
-    counter-clockwise seen from above; 0 at beat ≤ 0."""
-    if beat.real <= 0.0:
-        return 0.0 * beat
+    """The dancer's yaw [turns] at each (complex) ``beat``: ``amplitude`` × the module's profile,
+    counter-clockwise seen from above; 0 at beat ≤ 0. Every piece is evaluated and the one each
+    beat's real part falls in is kept."""
     loops = np.floor(beat.real / LOOP_BEATS)
     b = beat - loops * LOOP_BEATS
     stop_start = SPIN_UP_BEATS + FULL_SPEED_BEATS
-    if b.real < SPIN_UP_BEATS:
-        within = SPIN_UP_BEATS * smoothstep_integral(b / SPIN_UP_BEATS)
-    elif b.real < stop_start:
-        within = 0.5 * SPIN_UP_BEATS + (b - SPIN_UP_BEATS)
-    elif b.real < stop_start + STOP_BEATS:
-        s = (b - stop_start) / STOP_BEATS
-        within = 0.5 * SPIN_UP_BEATS + FULL_SPEED_BEATS + STOP_BEATS * (s - smoothstep_integral(s))
-    else:
-        within = 0.5 * SPIN_UP_BEATS + FULL_SPEED_BEATS + 0.5 * STOP_BEATS
-    return amplitude * (loops * TURNS_PER_LOOP + FULL_SPEED * within)
+    s = (b - stop_start) / STOP_BEATS
+    within = np.select(
+        [b.real < SPIN_UP_BEATS, b.real < stop_start, b.real < stop_start + STOP_BEATS],
+        [SPIN_UP_BEATS * smoothstep_integral(b / SPIN_UP_BEATS),
+         0.5 * SPIN_UP_BEATS + (b - SPIN_UP_BEATS),
+         0.5 * SPIN_UP_BEATS + FULL_SPEED_BEATS + STOP_BEATS * (s - smoothstep_integral(s))],
+        0.5 * SPIN_UP_BEATS + FULL_SPEED_BEATS + 0.5 * STOP_BEATS)
+    return np.where(beat.real <= 0.0, 0.0 * beat,
+                    amplitude * (loops * TURNS_PER_LOOP + FULL_SPEED * within))

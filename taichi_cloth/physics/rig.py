@@ -2,7 +2,8 @@
 written into the prescribed motion (``physics.control.Control``) that the kernels read.
 
 Once per frame, ``prepare_frame`` poses the body at ``SAMPLES_PER_FRAME`` + 1 evenly spaced times
-covering the frame and uploads (i) the capsule endpoints with their velocities to the control's
+covering the frame (``Body.poses``: the dancer's skeleton evaluated once, over all of them) and
+uploads (i) the capsule endpoints with their velocities to the control's
 capsule track, which the contact effect reads, and (ii) the garment's pins (a skirt's waist ring,
 a mesh garment's pins, a dress's straps), each carried by the pelvis frame or, above the middle of
 the back in the rest pose, the chest frame (x = R·p_local + origin, v = v_origin + ω × R·p_local),
@@ -65,7 +66,8 @@ class BodyRig:
         self.control = None
         self.pin_local = None  # each pin in its carrying frame, m
         self.pin_on_chest = None  # whether the chest (not the pelvis) carries it
-        self.pose_at_frame_end = self.body.pose(0.0)  # the body where the last frame ended
+        self.rest_pose = self.body.pose(0.0)  # where the garment settles, held still
+        self.pose_at_frame_end = self.rest_pose  # the body where the last frame ended
 
     def make_control(self, pinned: np.ndarray, rest_positions: np.ndarray, real) -> Control:
         """The prescribed motion for a cloth with these pins (N,) bool at ``rest_positions``
@@ -77,24 +79,32 @@ class BodyRig:
         pinned_rest = rest_positions[self.control.pinned_particles]
         self.pin_on_chest = pinned_rest[:, 1] > 0.5 * (rest.pelvis_position[1]
                                                        + rest.chest_position[1])
-        origin, rotation, _, _ = self.pin_frames(rest)
+        origin, rotation, _, _ = (frame[0] for frame in self.pin_frames([rest]))
         self.pin_local = np.einsum("pk,pkj->pj", pinned_rest - origin, rotation)
         self.control.capsule_ends_at_frame_end = (rest.capsule_a, rest.capsule_b)
         return self.control
 
-    def pin_frames(self, pose):
-        """Each pin's carrying frame in ``pose``: origins (P, 3) [m], rotations (P, 3, 3),
-        velocities (P, 3) [m/s], angular velocities (P, 3) [rad/s]."""
+    def pin_frames(self, poses):
+        """Each pin's carrying frame in each of ``poses`` (T of them): origins (T, P, 3) [m],
+        rotations (T, P, 3, 3), velocities (T, P, 3) [m/s], angular velocities (T, P, 3)
+        [rad/s]."""
         chest = self.pin_on_chest[:, None]
-        return (np.where(chest, pose.chest_position, pose.pelvis_position),
-                np.where(chest[:, :, None], pose.chest_rotation, pose.pelvis_rotation),
-                np.where(chest, pose.chest_velocity, pose.pelvis_velocity),
-                np.where(chest, pose.chest_angular_velocity, pose.pelvis_angular_velocity))
 
-    def carried_pins(self, pose) -> tuple[np.ndarray, np.ndarray]:
-        """The pins' positions (P, 3) [m] and velocities (P, 3) [m/s] in ``pose``."""
-        origin, rotation, velocity, angular_velocity = self.pin_frames(pose)
-        arm = np.einsum("pjk,pk->pj", rotation, self.pin_local)
+        def carrier(name: str, on_chest) -> np.ndarray:
+            """The chest's or the pelvis's ``name`` in each pose, per pin."""
+            chest_part, pelvis_part = (np.stack([getattr(pose, f"{frame}_{name}")
+                                                 for pose in poses])[:, None]
+                                       for frame in ("chest", "pelvis"))
+            return np.where(on_chest, chest_part, pelvis_part)
+
+        return (carrier("position", chest), carrier("rotation", chest[:, :, None]),
+                carrier("velocity", chest), carrier("angular_velocity", chest))
+
+    def carried_pins(self, poses) -> tuple[np.ndarray, np.ndarray]:
+        """The pins' positions (T, P, 3) [m] and velocities (T, P, 3) [m/s] in each of the T
+        ``poses``."""
+        origin, rotation, velocity, angular_velocity = self.pin_frames(poses)
+        arm = np.einsum("tpjk,pk->tpj", rotation, self.pin_local)
         return origin + arm, velocity + np.cross(angular_velocity, arm)
 
     def peak_pin_acceleration(self, duration: float) -> float:
@@ -106,7 +116,7 @@ class BodyRig:
         times = np.arange(0.0, min(duration, PEAK_WINDOW) + 1e-9, 1.0 / PEAK_SAMPLE_RATE)
         if len(times) < 2:
             return 0.0
-        velocities = np.stack([self.carried_pins(self.body.pose(t))[1] for t in times])
+        velocities = self.carried_pins(self.body.poses(times))[1]
         return float(np.linalg.norm(np.diff(velocities, axis=0), axis=2).max()
                      * PEAK_SAMPLE_RATE)
 
@@ -118,7 +128,7 @@ class BodyRig:
         first_time = frame * self.frame_duration
         interval = self.frame_duration / SAMPLES_PER_FRAME
         if still:
-            start = self.body.pose(0.0)
+            start = self.rest_pose
             zero = np.zeros_like(start.capsule_velocity_a)
             poses = [dataclasses.replace(
                 start, capsule_velocity_a=zero, capsule_velocity_b=zero,
@@ -126,7 +136,7 @@ class BodyRig:
                 chest_velocity=np.zeros(3), chest_angular_velocity=np.zeros(3))] \
                 * self.sample_count
         else:
-            poses = [self.body.pose(first_time + k * interval) for k in range(self.sample_count)]
+            poses = self.body.poses(first_time + np.arange(self.sample_count) * interval)
         capsule_positions = np.stack([np.stack([p.capsule_a, p.capsule_b], axis=1).reshape(-1, 3)
                                       for p in poses])
         capsule_velocities = np.stack([
@@ -135,9 +145,9 @@ class BodyRig:
         tracks = control.capsule_track.pairs(first_time, interval, capsule_positions,
                                              capsule_velocities)
         if self.carries_pins and len(control.pinned_particles):
-            pin_positions, pin_velocities = zip(*(self.carried_pins(p) for p in poses))
-            tracks += control.pin_track.pairs(first_time, interval, np.stack(pin_positions),
-                                              np.stack(pin_velocities))
+            pin_positions, pin_velocities = self.carried_pins(poses)
+            tracks += control.pin_track.pairs(first_time, interval, pin_positions,
+                                              pin_velocities)
         upload(tracks)  # one launch (one kernel to compile) for both tracks
         self.pose_at_frame_end = poses[-1]
         control.capsule_ends_at_frame_end = (poses[-1].capsule_a, poses[-1].capsule_b)
