@@ -188,9 +188,9 @@ class Body:
     Parameters
     ----------
     motion : ``"still"`` (rest pose forever), ``"hula"`` (kaholo steps with hip sway and
-        'ami hip circles), ``"sway"`` (the weight rocking side to side, feet planted) or
-        ``"twirl"`` (the rest pose spinning on the spot and stopping,
-        ``body.twirl``).
+        'ami hip circles), ``"sway"`` (the weight rocking side to side, feet planted),
+        ``"twirl"`` (the rest pose spinning on the spot and stopping, ``body.twirl``) or
+        ``"walk"`` (walking on the spot).
     tempo : beats per minute of the dance (> 0).
     amplitude : dimensionless size of the motion (>= 0); twirl: 2 turns per loop at 1; hula: 1 is
         natural: pelvis sway 6 cm,
@@ -260,12 +260,21 @@ class Body:
         scale, step = self.scale, COMPLEX_STEP
         pelvis_spin = angular_velocity(pelvis_rotation.real, pelvis_rotation.imag / step)
         chest_spin = angular_velocity(chest_rotation.real, chest_rotation.imag / step)
-        parts = (scale * capsule_a.real, scale * capsule_b.real, scale * capsule_a.imag / step,
-                 scale * capsule_b.imag / step, scale * display_a.real, scale * display_b.real,
-                 scale * pelvis_position.real, pelvis_rotation.real,
-                 scale * pelvis_position.imag / step, pelvis_spin, scale * chest_position.real,
-                 chest_rotation.real, scale * chest_position.imag / step, chest_spin)
-        return [BodyPose(float(t), *(part[k] for part in parts)) for k, t in enumerate(times)]
+        parts = {"capsule_a": scale * capsule_a.real, "capsule_b": scale * capsule_b.real,
+                 "capsule_velocity_a": scale * capsule_a.imag / step,
+                 "capsule_velocity_b": scale * capsule_b.imag / step,
+                 "display_capsule_a": scale * display_a.real,
+                 "display_capsule_b": scale * display_b.real,
+                 "pelvis_position": scale * pelvis_position.real,
+                 "pelvis_rotation": pelvis_rotation.real,
+                 "pelvis_velocity": scale * pelvis_position.imag / step,
+                 "pelvis_angular_velocity": pelvis_spin,
+                 "chest_position": scale * chest_position.real,
+                 "chest_rotation": chest_rotation.real,
+                 "chest_velocity": scale * chest_position.imag / step,
+                 "chest_angular_velocity": chest_spin}
+        return [BodyPose(time=float(t), **{name: part[k] for name, part in parts.items()})
+                for k, t in enumerate(times)]
 
     def _envelope(self, t):
         """Ease-in factor E(t) of the dance: 0 at t <= 0, 1 at t >= ease_in, C2 quintic between."""
@@ -368,17 +377,16 @@ class Body:
                              shoulder_world[..., 1, :]], axis=-2)
         capsule_a, capsule_b = self.layout.tile(bone_start, bone_end)
 
-        display_a = np.concatenate([neck_base[..., None, :] + turned(_CHEST_DISPLAY_A, back_rotation),
-                                    ankle], axis=-2)
-        display_b = np.concatenate([neck_base[..., None, :] + turned(_CHEST_DISPLAY_B, back_rotation),
-                                    ankle + _FOOT_WORLD], axis=-2)
+        chest_display_a, chest_display_b = (neck_base[..., None, :] + turned(local, back_rotation)
+                                            for local in (_CHEST_DISPLAY_A, _CHEST_DISPLAY_B))
+        display_a = np.concatenate([chest_display_a, ankle], axis=-2)
+        display_b = np.concatenate([chest_display_b, ankle + _FOOT_WORLD], axis=-2)
         if self.motion == "twirl":
             spin = rotation_y(2.0 * np.pi * twirl_turns(beat, self.amplitude))
             capsule_a, capsule_b = turned(capsule_a, spin), turned(capsule_b, spin)
             display_a, display_b = turned(display_a, spin), turned(display_b, spin)
-            pelvis_position, pelvis_rotation = (turned(pelvis_position[..., None, :], spin)[..., 0, :],
-                                                spin @ pelvis_rotation)
-            neck_base, back_rotation = (turned(neck_base[..., None, :], spin)[..., 0, :],
-                                        spin @ back_rotation)
+            pelvis_position = np.einsum("...jk,...k->...j", spin, pelvis_position)
+            neck_base = np.einsum("...jk,...k->...j", spin, neck_base)
+            pelvis_rotation, back_rotation = spin @ pelvis_rotation, spin @ back_rotation
         return (capsule_a, capsule_b, display_a, display_b, pelvis_position, pelvis_rotation,
                 neck_base, back_rotation)

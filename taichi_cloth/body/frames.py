@@ -5,9 +5,9 @@ complex-analytic operations, so the complex-step velocities pass through them.""
 import numpy as np
 
 
-def filled(entries, shape: tuple) -> np.ndarray:
-    """An array of ``shape`` (the largest entry's shape, then ``shape``) whose last axes, read
-    in order, hold ``entries`` (scalars, or arrays that broadcast to the largest)."""
+def _filled(entries, shape: tuple) -> np.ndarray:
+    """``entries`` (scalars, or arrays of one common shape B: the batch) laid out in order
+    along trailing axes of ``shape``: an array of shape B + ``shape``."""
     leading = max((getattr(entry, "shape", ()) for entry in entries), key=len)
     out = np.empty(leading + shape, np.result_type(*entries))
     flat = out.reshape(leading + (len(entries),))
@@ -18,12 +18,12 @@ def filled(entries, shape: tuple) -> np.ndarray:
 
 def vector(x, y, z):
     """(..., 3) vectors from three components of broadcastable shapes."""
-    return filled((x, y, z), (3,))
+    return _filled((x, y, z), (3,))
 
 
 def matrix(rows):
     """(..., 3, 3) matrices from three rows of three broadcastable components."""
-    return filled([entry for row in rows for entry in row], (3, 3))
+    return _filled([entry for row in rows for entry in row], (3, 3))
 
 
 def rotation_x(angle):

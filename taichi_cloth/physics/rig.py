@@ -3,13 +3,12 @@ written into the prescribed motion (``physics.control.Control``) that the kernel
 
 Once per frame, ``prepare_frame`` poses the body at ``SAMPLES_PER_FRAME`` + 1 evenly spaced times
 covering the frame (``Body.poses``: the dancer's skeleton evaluated once, over all of them) and
-uploads (i) the capsule endpoints with their velocities to the control's
-capsule track, which the contact effect reads, and (ii) the garment's pins (a skirt's waist ring,
-a mesh garment's pins, a dress's straps), each carried by the pelvis frame or, above the middle of
-the back in the rest pose, the chest frame (x = R·p_local + origin, v = v_origin + ω × R·p_local),
-to its pin track. The
-kernels interpolate both at every substep and RK4 stage (``physics.control``); nothing runs on the
-host inside the substep loop.
+uploads (i) the capsule endpoints with their velocities to the control's capsule track, which the
+contact effect reads, and (ii) the garment's pins (a skirt's waist ring, a mesh garment's pins, a
+dress's straps), each carried by the pelvis frame or, above the middle of the back in the rest
+pose, the chest frame (x = R·p_local + origin, v = v_origin + ω × R·p_local), to its pin track.
+The kernels interpolate both at every substep and RK4 stage (``physics.control``); nothing runs on
+the host inside the substep loop.
 """
 
 import dataclasses
@@ -88,17 +87,20 @@ class BodyRig:
         """Each pin's carrying frame in each of ``poses`` (T of them): origins (T, P, 3) [m],
         rotations (T, P, 3, 3), velocities (T, P, 3) [m/s], angular velocities (T, P, 3)
         [rad/s]."""
-        chest = self.pin_on_chest[:, None]
+        on_chest = self.pin_on_chest[:, None]  # (P, 1)
 
-        def carrier(name: str, on_chest) -> np.ndarray:
-            """The chest's or the pelvis's ``name`` in each pose, per pin."""
-            chest_part, pelvis_part = (np.stack([getattr(pose, f"{frame}_{name}")
-                                                 for pose in poses])[:, None]
-                                       for frame in ("chest", "pelvis"))
-            return np.where(on_chest, chest_part, pelvis_part)
+        def per_pin(chest, pelvis, on_chest) -> np.ndarray:
+            """Each pose's chest or pelvis value (T, ...) for each pin: (T, P, ...)."""
+            return np.where(on_chest, np.stack(chest)[:, None], np.stack(pelvis)[:, None])
 
-        return (carrier("position", chest), carrier("rotation", chest[:, :, None]),
-                carrier("velocity", chest), carrier("angular_velocity", chest))
+        return (per_pin([pose.chest_position for pose in poses],
+                        [pose.pelvis_position for pose in poses], on_chest),
+                per_pin([pose.chest_rotation for pose in poses],
+                        [pose.pelvis_rotation for pose in poses], on_chest[:, :, None]),
+                per_pin([pose.chest_velocity for pose in poses],
+                        [pose.pelvis_velocity for pose in poses], on_chest),
+                per_pin([pose.chest_angular_velocity for pose in poses],
+                        [pose.pelvis_angular_velocity for pose in poses], on_chest))
 
     def carried_pins(self, poses) -> tuple[np.ndarray, np.ndarray]:
         """The pins' positions (T, P, 3) [m] and velocities (T, P, 3) [m/s] in each of the T
