@@ -38,11 +38,10 @@ END_SITE = 0.05  # m: the end sites' bone length (head top, toes, hands)
 OPPOSITE_COSINE = -1.0 + 1e-14  # below it, a and b count as opposite (shortest_rotation)
 
 
-def dance_joints(body: Body, t: float) -> dict:
-    """Every ``JOINT_NAMES`` joint (and the spine's base) of the procedural ``body`` at time t
-    [s] (m), and its pelvis rotation: the hips are between the hip joints, the head is the top
-    of the neck."""
-    pose = body.pose(t)
+def dance_joints(body: Body, pose) -> dict:
+    """Every ``JOINT_NAMES`` joint (and the spine's base) of the procedural ``body`` in ``pose``
+    (a ``BodyPose`` of it) [m], and its pelvis rotation: the hips are between the hip joints,
+    the head is the top of the neck."""
     start, end = body.layout.bones(pose.capsule_a, pose.capsule_b)
     display_a, display_b = pose.display_capsule_a, pose.display_capsule_b
     joints = {"hips": 0.5 * (start[2] + start[3]), "neck": end[1], "head": display_b[0]}
@@ -109,8 +108,8 @@ def write_dance_bvh(body: Body, target: Path, seconds: float, fps: float,
     times = np.arange(round(seconds * fps) + 1) / fps
     axes = AXES[up]
     frames = []
-    for t in times:  # into the file's axes and unit
-        joints, pelvis = dance_joints(body, t)
+    for pose in body.poses(times):  # into the file's axes and unit
+        joints, pelvis = dance_joints(body, pose)
         frames.append(({joint: axes @ point / unit for joint, point in joints.items()},
                        axes @ pelvis @ axes.T))
     rest, rest_pelvis = frames[0]
