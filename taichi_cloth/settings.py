@@ -61,11 +61,12 @@ def _check_number(ctx, dotted, value, meta, integer):
     if not math.isfinite(value):
         raise ctx.error(dotted, f"must be finite, got {value!r}")
     low, high = meta["low"], meta["high"]
+    unit = f" ({meta['doc']})" if meta["doc"] else ""
     if low is not None and (value < low or (value == low and not meta["low_inclusive"])):
         bound = f">= {low}" if meta["low_inclusive"] else f"> {low}"
-        raise ctx.error(dotted, f"must be {bound}, got {value!r}")
+        raise ctx.error(dotted, f"must be {bound}{unit}, got {value!r}")
     if high is not None and value > high:
-        raise ctx.error(dotted, f"must be <= {high}, got {value!r}")
+        raise ctx.error(dotted, f"must be <= {high}{unit}, got {value!r}")
     return float(value) if not integer else value
 
 

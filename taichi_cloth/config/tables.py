@@ -16,6 +16,7 @@ INTEGRATOR_NAMES = ("euler", "symplectic", "rk4", "implicit")
 SPRING_FAMILIES = ("stretch", "shear")  # "bend" springs come with cloth.bending = "springs"
 BENDING_MODELS = ("curvature", "springs", "none")
 MESH_FORMATS = ("obj", "ply", "vtu", "xdmf", "usd", "pc2")
+DENSITY_RANGE = (1e-3, 20.0)  # kg/m², the areal densities a cloth may have
 
 
 @dataclass(frozen=True)
@@ -61,7 +62,9 @@ class SimulationConfig:
 @dataclass(frozen=True)
 class MaterialOverrides:
     preset: str = setting("cotton", "str", choices=tuple(PRESETS))
-    density: float | None = setting(None, "float", low=0.0, low_inclusive=False, doc="kg/m²")
+    # tissue paper is ~0.015 kg/m², chain mail ~10; 130 would be cotton's 130 g/m² typed as kg/m²
+    density: float | None = setting(None, "float", low=DENSITY_RANGE[0], high=DENSITY_RANGE[1],
+                                    doc="kg/m²; a fabric's g/m² over 1000")
     stretch_stiffness: float | None = setting(None, "float", low=0.0, low_inclusive=False, doc="N/m")
     shear_stiffness: float | None = setting(None, "float", low=0.0, doc="N/m")
     bend_stiffness: float | None = setting(None, "float", low=0.0, doc="N·m, warp")
