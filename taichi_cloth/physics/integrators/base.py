@@ -35,6 +35,14 @@ SERIAL_PARTICLE_LIMIT = 32768
 SERIAL_LAUNCH_WORK = 5_000_000
 
 
+def made_before(state_a, state_b) -> bool:
+    """Whether state_a's fields were made before state_b's: the order in which a kernel that
+    serves both directions takes a pair of states. It is the same in every run of a scene
+    (Taichi numbers its SNodes in order; Python's ``id`` is not), so the offline cache holds the
+    one kernel a run needs."""
+    return state_a.x.snode._id < state_b.x.snode._id
+
+
 @ti.data_oriented
 class Integrator:
     """Base of the integrators. A subclass sets ``name`` and defines ``substep(state_in,
@@ -89,7 +97,7 @@ class Integrator:
         """Which compiled kernel a launch of ``count`` substeps from ``state_a`` runs (the first
         launch of each compiles it). In parallel mode the states are template arguments, so each
         order of the pair is a kernel of its own; the serial kernel orders them itself."""
-        return "serial" if self.serial else (count, id(state_a) < id(state_b))
+        return "serial" if self.serial else (count, made_before(state_a, state_b))
 
     def step(self, state_in, state_out, t: float, dt: float) -> None:
         """One substep from state_in at time t [s] into state_out."""
@@ -118,7 +126,7 @@ class Integrator:
         with without_taichi_passes(self.compiles_without_passes):
             if not self.serial:
                 self._advance(a, b, t, dt, count)
-            elif id(a) < id(b):  # one compiled kernel per pair of states, whichever is newest
+            elif made_before(a, b):  # one compiled kernel per pair, whichever is newest
                 self._advance_serial(a, b, t, dt, count, 0)
             else:
                 self._advance_serial(b, a, t, dt, count, 1)

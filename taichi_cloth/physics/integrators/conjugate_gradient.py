@@ -41,6 +41,15 @@ class SolverBreakdown(ArithmeticError):
     trusted (the frame guard rolls it back and halves the step)."""
 
 
+def raise_breakdown(outcome: int, iterations: int, curvature: float, rz: float) -> None:
+    """``SolverBreakdown`` for a solve that ended in ``NOT_FINITE`` or ``BREAKDOWN``."""
+    if outcome == NOT_FINITE:
+        raise SolverBreakdown(f"the right-hand side is not finite (r·z = {rz})")
+    if outcome == BREAKDOWN:
+        raise SolverBreakdown(f"conjugate gradients broke down at iteration {iterations} "
+                              f"(p·Ap = {curvature:.3g}, r·z = {rz:.3g})")
+
+
 @ti.func
 def finite(value):
     """Neither NaN nor ±∞ (explicit tests: fast math must not fold them away)."""
@@ -88,11 +97,7 @@ class BlockConjugateGradient:
         else:
             outcome, iterations, curvature, rz = self._solve_parallel(tolerance_sq)
         iterations = int(iterations)
-        if outcome == NOT_FINITE:
-            raise SolverBreakdown(f"the right-hand side is not finite (r·z = {rz})")
-        if outcome == BREAKDOWN:
-            raise SolverBreakdown(f"conjugate gradients broke down at iteration {iterations} "
-                                  f"(p·Ap = {curvature:.3g}, r·z = {rz:.3g})")
+        raise_breakdown(outcome, iterations, curvature, rz)
         if outcome == UNCONVERGED:
             self.unconverged_steps += 1
         return iterations
@@ -120,9 +125,14 @@ class BlockConjugateGradient:
 
     @ti.kernel
     def _solve_serial(self, tolerance_sq: ti.f64, max_iterations: ti.i32) -> SOLVE_REPORT:
-        """The whole solve in this launch, on one thread: returns (outcome, iterations, p·A·p,
-        r·z), the last two where it stopped. Stops when r·z ≤ tolerance²·r₀·P⁻¹r₀ (converged),
-        after ``max_iterations`` (unconverged), or at a non-finite r·z or a p·A·p that is not
+        """``_solve_on_one_thread`` in a launch of its own."""
+        return self._solve_on_one_thread(tolerance_sq, max_iterations)
+
+    @ti.func
+    def _solve_on_one_thread(self, tolerance_sq, max_iterations):
+        """The whole solve, on one thread: returns (outcome, iterations, p·A·p, r·z), the last
+        two where it stopped. Stops when r·z ≤ tolerance²·r₀·P⁻¹r₀ (converged), after
+        ``max_iterations`` (unconverged), or at a non-finite r·z or a p·A·p that is not
         positive (breakdown)."""
         sums = ti.Vector([0.0, 0.0], ti.f64)
         if ti.static(self.gauss_seidel):
