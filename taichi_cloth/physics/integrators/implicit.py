@@ -161,9 +161,10 @@ class BackwardEuler(GaussSeidelSweeps, BlockConjugateGradient, Integrator):
                      max_iterations: ti.i32) -> SOLVE_REPORT:
         """One step (one Newton iteration) in one launch, on one thread: from ``first`` into
         ``second`` (into_first = 0) or from ``second`` into ``first`` (1), both holding the
-        new state afterwards (one kernel, whichever way the step goes); each pass keeps its
-        own task, as in the launches it replaces. Returns the solve's (outcome, iterations,
-        p·A·p, r·z); after a solve that broke down, nothing is accepted."""
+        new state afterwards (one kernel, whichever way the step goes). Taichi runs the
+        serial passes as one task; a parallel pass (self-collision's walks) stays a task of
+        its own. Returns the solve's (outcome, iterations, p·A·p, r·z); after a solve that
+        broke down, nothing is accepted."""
         if into_first == 1:  # loops under a branch run serially
             self._copy_state(second, first)
         self._take_start(first, t, dt)
