@@ -267,9 +267,10 @@ def run_steps(integrator, state, state_out, x, v, t, h, steps, scratch):
 
 
 def test_the_one_launch_serial_solve_and_the_parallel_one_take_the_same_steps(moving):
-    """With block Jacobi, the serial solve (one launch, one thread) and the per-iteration
-    parallel one run the same block functions: same iterations, same velocities; every solve
-    meets the tolerance of the cold start."""
+    """With block Jacobi, the serial step (the whole step in one launch, on one thread:
+    ``_serial_step``) and the parallel one (a launch per pass and per CG iteration) run the
+    same block functions: same iterations, same velocities; every solve meets the tolerance of
+    the cold start."""
     runs = {}
     for serial in (True, False):
         integrator = BackwardEuler(moving.forces, moving.physics.control, gauss_seidel=False)

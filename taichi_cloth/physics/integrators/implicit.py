@@ -83,8 +83,11 @@ class BackwardEuler(GaussSeidelSweeps, BlockConjugateGradient, Integrator):
             self._allocate_sweeps()
         self.step_iterations = []  # CG iterations of each step since the last ``take_iterations``
         self.unconverged_steps = 0
-        # One launch a step instead of one a pass (~0.7 ms a step less on ``hula``)
-        self.steps_in_one_launch = self.serial and newton_iterations == 1
+
+    @property
+    def steps_in_one_launch(self) -> bool:
+        """Whether a step is one launch (``_serial_step``: ~0.7 ms a step less on ``hula``)."""
+        return self.serial and self.newton_iterations == 1
 
     def memory(self) -> dict:
         """The warm start's history (the last step's velocity change and its step) and the
