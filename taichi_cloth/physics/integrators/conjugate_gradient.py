@@ -17,11 +17,12 @@ With block Jacobi each CG iteration is three passes over fixed blocks of ``DOT_B
 particles: the direction p = z + β·p; A·p with the block's part of p·A·p; δ += α·p, r −= α·A·p
 and z = P⁻¹·r with the block's part of r·z. Dot products sum each block in order, then the
 blocks in order, so a solve is bit-reproducible whatever the thread count (no racing atomic
-float adds). Small cloth (``self.serial``) runs the whole solve, convergence test included, in
-one kernel launch on one thread; larger cloth launches one kernel per iteration, each pass a
-parallel loop over the blocks. With Jacobi both run the same block functions and take the same
-steps. Scratch fields are allocated once; only ``_start_candidate`` and ``_accept`` (the copy
-out) are compiled once per state.
+float adds). Small cloth (``self.serial``) runs the whole solve, convergence test included, on
+one thread within the step's launch (``BackwardEuler._serial_step``); larger cloth launches one
+kernel per iteration, each pass a parallel loop over the blocks. With Jacobi both run the same
+block functions and take the same steps. Scratch fields are allocated once; ``_serial_step`` is
+compiled once per pair of states, ``_start_candidate``, ``_accept`` and ``_post_step`` once per
+state.
 """
 
 import math
