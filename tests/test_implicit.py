@@ -13,6 +13,7 @@ from taichi_cloth.effects.gravity import Gravity, GravitySettings
 from taichi_cloth.effects.ground import GroundContact, GroundSettings
 from taichi_cloth.effects.wind import Wind, WindSettings
 from taichi_cloth.cloth.garment import build_garment
+from taichi_cloth.physics.integrators.conjugate_gradient import SolverBreakdown
 from taichi_cloth.physics.integrators.implicit import BackwardEuler
 from taichi_cloth.physics.model import Model
 from taichi_cloth.config.scene import load_scene
@@ -278,6 +279,15 @@ def test_the_one_launch_serial_solve_and_the_parallel_one_take_the_same_steps(mo
         velocities = run_steps(integrator, moving.state, moving.state_out, moving.x, moving.v,
                                moving.t, moving.h, 5, moving.out)
         runs[serial] = integrator.take_iterations(), velocities
+        # a non-finite state breaks the solve down, whichever way it runs: reported, not
+        # counted as a step (the frame guard then rolls back and halves the step)
+        poisoned = moving.v.copy()
+        poisoned[np.flatnonzero(moving.model.host_inv_mass > 0)[0]] = np.nan
+        moving.state.v.from_numpy(poisoned)
+        with pytest.raises(SolverBreakdown, match="not finite"):
+            integrator.step(moving.state, moving.state_out, moving.t, moving.h)
+        assert integrator.take_iterations() == []
+        moving.start()
     assert runs[True][0] == runs[False][0]
     np.testing.assert_allclose(runs[True][1], runs[False][1], rtol=0, atol=1e-12)
 
