@@ -66,7 +66,7 @@ import numpy as np
 from taichi_cloth.body.capsules import (CAPSULE_LAYOUT_NAMES, DISPLAY_CAPSULE_NAMES,
                                         DISPLAY_CAPSULE_RADIUS, CapsuleLayout)
 from taichi_cloth.body.frames import (angular_velocity, rotation_x, rotation_y, rotation_z,
-                                      row_dot, turned, vector)
+                                      row_dot, turned, turned_vector, vector)
 from taichi_cloth.body.twirl import twirl_turns
 from taichi_cloth.body.hula import (BACK_COUNTER, COMPLEX_STEP, FOOT_LIFT, HIP_CIRCLE_BEATS,
                                    HIP_CIRCLE_RADIUS, HIP_SWAY, KAHOLO_HARMONICS, LOOP_BEATS,
@@ -385,8 +385,8 @@ class Body:
             spin = rotation_y(2.0 * np.pi * twirl_turns(beat, self.amplitude))
             capsule_a, capsule_b = turned(capsule_a, spin), turned(capsule_b, spin)
             display_a, display_b = turned(display_a, spin), turned(display_b, spin)
-            pelvis_position = np.einsum("...jk,...k->...j", spin, pelvis_position)
-            neck_base = np.einsum("...jk,...k->...j", spin, neck_base)
+            pelvis_position = turned_vector(pelvis_position, spin)
+            neck_base = turned_vector(neck_base, spin)
             pelvis_rotation, back_rotation = spin @ pelvis_rotation, spin @ back_rotation
         return (capsule_a, capsule_b, display_a, display_b, pelvis_position, pelvis_rotation,
                 neck_base, back_rotation)

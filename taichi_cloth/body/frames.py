@@ -49,6 +49,11 @@ def turned(points, rotation):
     return np.einsum("...pk,...jk->...pj", points, rotation)
 
 
+def turned_vector(vectors, rotation):
+    """Vectors (..., 3) turned by rotations (..., 3, 3): R v for each (complex-step safe)."""
+    return np.einsum("...jk,...k->...j", rotation, vectors)
+
+
 def row_dot(u, v):
     """Dot products over the last axis of broadcastable arrays, without conjugation
     (complex-step safe)."""

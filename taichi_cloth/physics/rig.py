@@ -87,20 +87,15 @@ class BodyRig:
         """Each pin's carrying frame in each of ``poses`` (T of them): origins (T, P, 3) [m],
         rotations (T, P, 3, 3), velocities (T, P, 3) [m/s], angular velocities (T, P, 3)
         [rad/s]."""
-        on_chest = self.pin_on_chest[:, None]  # (P, 1)
+        def per_pin(quantity: str) -> np.ndarray:
+            """Each pose's chest_… or pelvis_… ``quantity`` (T, ...) for each pin: (T, P, ...)."""
+            chest, pelvis = (np.stack([getattr(pose, f"{frame}_{quantity}") for pose in poses])
+                             for frame in ("chest", "pelvis"))
+            on_chest = self.pin_on_chest.reshape((-1,) + (1,) * (chest.ndim - 1))  # (P, 1, ...)
+            return np.where(on_chest, chest[:, None], pelvis[:, None])
 
-        def per_pin(chest, pelvis, on_chest) -> np.ndarray:
-            """Each pose's chest or pelvis value (T, ...) for each pin: (T, P, ...)."""
-            return np.where(on_chest, np.stack(chest)[:, None], np.stack(pelvis)[:, None])
-
-        return (per_pin([pose.chest_position for pose in poses],
-                        [pose.pelvis_position for pose in poses], on_chest),
-                per_pin([pose.chest_rotation for pose in poses],
-                        [pose.pelvis_rotation for pose in poses], on_chest[:, :, None]),
-                per_pin([pose.chest_velocity for pose in poses],
-                        [pose.pelvis_velocity for pose in poses], on_chest),
-                per_pin([pose.chest_angular_velocity for pose in poses],
-                        [pose.pelvis_angular_velocity for pose in poses], on_chest))
+        return tuple(per_pin(quantity)
+                     for quantity in ("position", "rotation", "velocity", "angular_velocity"))
 
     def carried_pins(self, poses) -> tuple[np.ndarray, np.ndarray]:
         """The pins' positions (T, P, 3) [m] and velocities (T, P, 3) [m/s] in each of the T
