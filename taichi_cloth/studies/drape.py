@@ -158,10 +158,14 @@ def start_ripple(angle: np.ndarray, specimen: int) -> np.ndarray:
     return RIPPLE * wave / np.abs(peak).max()
 
 
-def settle_dynamically(simulation, specimen: int) -> None:
+def settle_dynamically(simulation, specimen: int) -> int:
     """From the flat start with specimen ``specimen``'s ripple, backward Euler steps with
     kinetic damping (velocities zeroed whenever the kinetic energy passes a peak) until every
-    particle is slower than ``DYNAMIC_REST_SPEED`` after a step, at most ``DYNAMIC_STEPS``."""
+    particle is slower than ``DYNAMIC_REST_SPEED`` after a step, or the fall has come back to
+    where it last restarted (no particle more than ``MOVE_TOLERANCE`` from its place at the last
+    zeroing: the specimen repeats one cycle around a fixed shape, a contact's chatter on the
+    plate, which the Newton steps then bring to rest), at most ``DYNAMIC_STEPS``. Returns the
+    steps taken."""
     snapshot = simulation.snapshot()
     radius = np.hypot(snapshot.positions[:, 0], snapshot.positions[:, 2])
     angle = np.arctan2(snapshot.positions[:, 2], snapshot.positions[:, 0])
@@ -171,7 +175,8 @@ def settle_dynamically(simulation, specimen: int) -> None:
     simulation.restore(dataclasses.replace(snapshot, positions=start))
     simulation.set_time_step(DYNAMIC_STEP, 1)
     record, mass, previous = RunRecord(), simulation.model.host_mass, math.inf
-    for _ in range(DYNAMIC_STEPS):
+    restart = start
+    for step in range(1, DYNAMIC_STEPS + 1):
         simulation.advance_frame(1, record)
         current = simulation.snapshot()
         speed_sq = np.sum(current.velocities ** 2, axis=1)
@@ -181,9 +186,13 @@ def settle_dynamically(simulation, specimen: int) -> None:
         if kinetic < previous:
             simulation.restore(dataclasses.replace(
                 current, velocities=np.zeros_like(current.velocities)))
+            if np.max(np.abs(current.positions - restart)) < MOVE_TOLERANCE:
+                break
+            restart = current.positions
             kinetic = 0.0
         previous = kinetic
     simulation.set_time_step(snapshot.dt, snapshot.substeps_per_frame)
+    return step
 
 
 def drape(material: tuple[str, ...], spacing_fraction: float,
@@ -202,13 +211,14 @@ def drape(material: tuple[str, ...], spacing_fraction: float,
     results = []
     for specimen in range(specimens):
         simulation.restore(flat)
-        settle_dynamically(simulation, specimen)
+        fall_steps = settle_dynamically(simulation, specimen)
         settled = settle(simulation, MOVE_TOLERANCE, RESIDUAL_TOLERANCE)
         shadow = shadow_area(settled.positions, triangles)
         angle, radius = hem_profile(settled.positions, simulation.garment.columns)
         results.append({"drape_coefficient": drape_coefficient(shadow, flat_shadow),
                         "shadow_area_m2": shadow, "nodes": node_count(radius),
-                        "settle_steps": settled.steps, "residual": settled.residual,
+                        "fall_steps": fall_steps, "settle_steps": settled.steps,
+                        "residual": settled.residual,
                         "lift_m": float(np.max(settled.positions[:, 1] - flat.positions[:, 1])),
                         "positions": settled.positions, "hem_angle": angle, "hem_radius": radius})
     plate = simulation.scene.effects.get("support")  # gone only if --set removed it
@@ -223,6 +233,7 @@ def drape(material: tuple[str, ...], spacing_fraction: float,
         "specimen_drape_coefficients": [round(float(c), 4) for c in coefficients],
         "specimen_nodes": [r["nodes"] for r in results],
         "shadow_area_m2": shown["shadow_area_m2"], "nodes": shown["nodes"],
+        "fall_steps": max(r["fall_steps"] for r in results),
         "settle_steps": max(r["settle_steps"] for r in results),
         "residual": max(r["residual"] for r in results),
         "lift_m": max(r["lift_m"] for r in results),
