@@ -24,39 +24,56 @@ def _copy(layout: ti.template(), reals: ti.types.ndarray(dtype=ti.f64, ndim=1),
     field, its ``components`` values (1 for a scalar field, n·m of a matrix in row order), from
     the flat array at offset + e·components. One loop over the elements of the longest field
     serves every field (a loop per field made a kernel that took ~4× as long to load from the
-    offline cache)."""
+    offline cache), and each field's element is one store of a whole scalar, vector or matrix
+    written out here, without a function inlined per component (Taichi parses and transforms
+    an inlined function again at every call: 135 of them for the 42 fields of ``hula`` took
+    most of its 0.45 s upload at start-up)."""
     for element in range(longest):
         for k in ti.static(range(len(layout))):
             field, offset, components, integer = ti.static(layout[k])
             if element < ti.static(field_size(field)):
                 flat = offset + element * components
-                for c in ti.static(range(components)):
-                    if ti.static(integer):
-                        _store(field, element, c, integers[flat + c])
-                    else:
-                        _store(field, element, c, ti.cast(reals[flat + c], field.dtype))
+                width = ti.static(vector_width(field))
+                if ti.static(width == 0):
+                    _put(field, element, integers[flat] if ti.static(integer) else
+                         ti.cast(reals[flat], field.dtype))
+                elif ti.static(width == 1 and integer):
+                    _put(field, element, ti.Vector([integers[flat + r]
+                                                    for r in ti.static(range(field.n))]))
+                elif ti.static(width == 1):
+                    _put(field, element, ti.Vector([ti.cast(reals[flat + r], field.dtype)
+                                                    for r in ti.static(range(field.n))]))
+                elif ti.static(integer):
+                    _put(field, element, ti.Matrix([[integers[flat + r * width + c]
+                                                     for c in ti.static(range(width))]
+                                                    for r in ti.static(range(field.n))]))
+                else:
+                    _put(field, element, ti.Matrix([[ti.cast(reals[flat + r * width + c],
+                                                              field.dtype)
+                                                     for c in ti.static(range(width))]
+                                                    for r in ti.static(range(field.n))]))
 
 
 @ti.func
-def _store(field: ti.template(), element, component: ti.template(), value):
-    """Component ``component`` of element ``element`` (C order) of ``field`` = value."""
+def _put(field: ti.template(), element, value: ti.template()):
+    """Element ``element`` (C order) of ``field`` = value (a scalar, vector or matrix)."""
     shape = ti.static(field.shape)
     if ti.static(len(shape) == 0):
-        _store_at(field, None, component, value)
+        field[None] = value
     else:
-        index = ti.Vector([element // ti.static(int(np.prod(shape[d + 1:], dtype=np.int64)))
-                           % ti.static(shape[d]) for d in ti.static(range(len(shape)))])
-        _store_at(field, index, component, value)
+        field[ti.Vector([element // ti.static(stride(shape, d)) % ti.static(shape[d])
+                         for d in ti.static(range(len(shape)))])] = value
 
 
-@ti.func
-def _store_at(field: ti.template(), index: ti.template(), component: ti.template(), value):
-    if ti.static(not hasattr(field, "n")):
-        field[index] = value
-    elif ti.static(field.m == 1):
-        field[index][component] = value
-    else:
-        field[index][component // field.m, component % field.m] = value
+def vector_width(field) -> int:
+    """Columns of a field's element: 0 for a scalar field, 1 for a vector, m for an n × m
+    matrix."""
+    return field.m if hasattr(field, "n") else 0
+
+
+def stride(shape: tuple, axis: int) -> int:
+    """Elements of a C-order array of ``shape`` between two neighbours along ``axis``."""
+    return int(np.prod(shape[axis + 1:], dtype=np.int64))
 
 
 def field_size(field) -> int:
