@@ -104,8 +104,9 @@ def test_node_count_counts_the_bulges_of_the_hem():
 @pytest.fixture(scope="module")
 def drapes():
     """Wool, cotton and denim at the coarse spacing (one reference length), and cotton at 0.7 of
-    it (silk's and polyester's coarsest specimens buckle up on the plate and take ~100–200 Newton
-    steps; denim's finer ones ~500: docs/fabric-tests.md)."""
+    it (silk drapes above wool for all its shorter bending length, its shear rigidity the
+    larger; polyester's specimen takes ~20 s, denim's finer ones ~500 Newton steps:
+    docs/fabric-tests.md)."""
     return {(material, fraction): drape((f"cloth.material={material}",), fraction, specimens=1)
             for material, fraction in (("wool", 1.0), ("cotton", 1.0), ("denim", 1.0),
                                        ("cotton", 0.7))}
