@@ -5,7 +5,9 @@ order; the drape coefficient inside (0, 1), ordering the fabrics by bending leng
 refinement; the shadow area and fold count on shapes whose answer is known; the command's files.
 The full table for every preset at two resolutions is docs/fabric-tests.md."""
 
+import dataclasses
 import math
+import types
 
 import numpy as np
 import pytest
@@ -13,8 +15,9 @@ import pytest
 from taichi_cloth.cli import main
 from taichi_cloth.config.materials import PRESETS
 from taichi_cloth.studies.cantilever import cantilever, peirce_factor
-from taichi_cloth.studies.drape import (BUCKLE_LIFT, DISC_RADIUS, DYNAMIC_STEPS, SPECIMEN_RADIUS,
-                                        drape, drape_coefficient, node_count, shadow_area)
+from taichi_cloth.studies.drape import (BUCKLE_LIFT, DISC_RADIUS, DYNAMIC_STEPS, MOVE_TOLERANCE,
+                                        SPECIMEN_RADIUS, START_STEPS, drape, drape_coefficient,
+                                        node_count, settle_dynamically, shadow_area)
 
 
 def test_peirce_factor_is_half_at_the_standard_angle():
@@ -125,8 +128,56 @@ def test_drape_coefficients_order_the_fabrics_and_stay_under_refinement(drapes):
         row["drape_coefficient"] for row in coarse)
     assert abs(drapes[("cotton", 0.7)]["drape_coefficient"]
                - drapes[("cotton", 1.0)]["drape_coefficient"]) < 0.05
-    # cotton's coarse fall chatters on the plate around one shape: it stops on coming back to it
-    assert drapes[("cotton", 1.0)]["fall_steps"] < DYNAMIC_STEPS
+
+
+@dataclasses.dataclass
+class ScriptedState:
+    positions: np.ndarray  # m
+    velocities: np.ndarray  # m/s
+    dt: float = 0.5  # s
+    substeps_per_frame: int = 1
+
+
+class ChatteringSpecimen:
+    """A stand-in for the drape's simulation whose fall is scripted: a particle over the plate
+    rises by ``bump`` at 1 cm/s on odd steps and falls back at 0.5 cm/s on even ones, so that the
+    kinetic energy peaks every two steps and the damping zeroes it at the foot of the bump; the
+    foot moves by ``drift`` at each step down (0: it comes back to the same place)."""
+
+    def __init__(self, bump: float, drift: float):
+        self.bump, self.drift, self.steps = bump, drift, 0
+        self.model = types.SimpleNamespace(host_mass=np.ones(2))
+        self.state = ScriptedState(np.array([[0.12, 0.5, 0.0], [0.0, 0.5, 0.12]]), np.zeros((2, 3)))
+
+    def snapshot(self) -> ScriptedState:
+        return dataclasses.replace(self.state, positions=self.state.positions.copy(),
+                                   velocities=self.state.velocities.copy())
+
+    def restore(self, state: ScriptedState) -> None:  # copied in, as into the fields
+        self.state = dataclasses.replace(state, positions=state.positions.copy(),
+                                         velocities=state.velocities.copy())
+
+    def set_time_step(self, dt: float, substeps: int) -> None:
+        self.state.dt, self.state.substeps_per_frame = dt, substeps
+
+    def advance_frame(self, frame: int, record) -> None:
+        self.steps += 1
+        up = self.steps % 2 == 1
+        self.state.positions[0, 1] += self.bump if up else self.drift - self.bump
+        self.state.velocities[0] = [0.0, 0.01 if up else 0.005, 0.0]
+
+
+@pytest.mark.parametrize("drift, falls_to_the_cap", [(0.0, False), (10 * MOVE_TOLERANCE, True)])
+def test_the_fall_ends_when_a_zeroing_finds_the_cloth_where_the_last_one_left_it(drift,
+                                                                                 falls_to_the_cap):
+    """A fall chattering on one spot stops at its second zeroing in the same place; one whose
+    feet drift by more than the move tolerance goes on to the cap."""
+    specimen = ChatteringSpecimen(bump=1e-4, drift=drift)
+    steps = settle_dynamically(specimen, 0)
+    assert steps == (START_STEPS + DYNAMIC_STEPS if falls_to_the_cap else 6)
+    assert specimen.steps == steps
+    if not falls_to_the_cap:  # stopped at a zeroing: left at rest for the Newton steps
+        assert not specimen.state.velocities.any()
 
 
 def test_fabric_test_command_writes_table_csv_and_pictures(tmp_path, capsys):
