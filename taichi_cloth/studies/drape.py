@@ -22,7 +22,7 @@ an almost inextensible sheet must focus its bending into a layer far narrower th
 (docs/fabric-tests.md). On the support alone the cloth may lift off the disc near its edge
 between the folds. The mesh resolves both of the drape's lengths (``reference_length``) and has
 a ring on the support's edge (``disc_overrides``); so made, every preset's mean DC changes by
-less than 0.03 from 0.7 to 0.5 of the reference length (measured there).
+0.031 at most from 0.7 to 0.5 of the reference length (measured there).
 
 A drape is multistable: a specimen settles into the fold count its start leads it to, and DC
 falls with more folds. As the standard averages specimens (ISO 9073-9: three, each face up),
