@@ -42,15 +42,6 @@ class SolverBreakdown(ArithmeticError):
     trusted (the frame guard rolls it back and halves the step)."""
 
 
-def raise_breakdown(outcome: int, iterations: int, curvature: float, rz: float) -> None:
-    """``SolverBreakdown`` for a solve that ended in ``NOT_FINITE`` or ``BREAKDOWN``."""
-    if outcome == NOT_FINITE:
-        raise SolverBreakdown(f"the right-hand side is not finite (r·z = {rz})")
-    if outcome == BREAKDOWN:
-        raise SolverBreakdown(f"conjugate gradients broke down at iteration {iterations} "
-                              f"(p·Ap = {curvature:.3g}, r·z = {rz:.3g})")
-
-
 @ti.func
 def finite(value):
     """Neither NaN nor ±∞ (explicit tests: fast math must not fold them away)."""
@@ -93,14 +84,21 @@ class BlockConjugateGradient:
         """Preconditioned CG for A·δ = rhs on the free particles; returns its iterations."""
         tolerance_sq = self.tolerance ** 2
         if self.serial:
-            outcome, iterations, curvature, rz = self._solve_serial(tolerance_sq,
-                                                                    self.max_iterations)
-        else:
-            outcome, iterations, curvature, rz = self._solve_parallel(tolerance_sq)
+            return self._take_report(self._solve_serial(tolerance_sq, self.max_iterations))
+        return self._take_report(self._solve_parallel(tolerance_sq))
+
+    def _take_report(self, report) -> int:
+        """The iterations of a solve that ended as ``report`` (outcome, iterations, p·A·p, r·z)
+        says, an unconverged one counted in ``unconverged_steps``; ``SolverBreakdown`` for one
+        that ended ``NOT_FINITE`` or in ``BREAKDOWN``."""
+        outcome, iterations, curvature, rz = report
         iterations = int(iterations)
-        raise_breakdown(outcome, iterations, curvature, rz)
-        if outcome == UNCONVERGED:
-            self.unconverged_steps += 1
+        if outcome == NOT_FINITE:
+            raise SolverBreakdown(f"the right-hand side is not finite (r·z = {rz})")
+        if outcome == BREAKDOWN:
+            raise SolverBreakdown(f"conjugate gradients broke down at iteration {iterations} "
+                                  f"(p·Ap = {curvature:.3g}, r·z = {rz:.3g})")
+        self.unconverged_steps += int(outcome == UNCONVERGED)
         return iterations
 
     def _solve_parallel(self, tolerance_sq: float):

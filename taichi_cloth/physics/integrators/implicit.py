@@ -44,7 +44,7 @@ import taichi as ti
 
 from taichi_cloth.physics.integrators.base import Integrator, made_before
 from taichi_cloth.physics.integrators.conjugate_gradient import (
-    CONVERGED, SOLVE_REPORT, UNCONVERGED, BlockConjugateGradient, raise_breakdown)
+    CONVERGED, SOLVE_REPORT, UNCONVERGED, BlockConjugateGradient)
 from taichi_cloth.physics.integrators.gauss_seidel import GaussSeidelSweeps
 from taichi_cloth.physics.model import State
 
@@ -132,12 +132,9 @@ class BackwardEuler(GaussSeidelSweeps, BlockConjugateGradient, Integrator):
         if self.steps_in_one_launch:
             first, second = (state_in, state_out) if made_before(state_in, state_out) \
                 else (state_out, state_in)
-            outcome, iterations, curvature, rz = self._serial_step(
+            iterations = self._take_report(self._serial_step(
                 first, second, int(first is state_out), t, dt, self._start_weight(dt),
-                self.tolerance ** 2, self.max_iterations)
-            iterations = int(iterations)
-            raise_breakdown(outcome, iterations, curvature, rz)
-            self.unconverged_steps += int(outcome == UNCONVERGED)
+                self.tolerance ** 2, self.max_iterations))
         else:
             self._start_candidate(state_in, t, dt)
             iterations = 0
