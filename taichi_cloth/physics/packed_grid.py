@@ -65,7 +65,11 @@ def group_pass_function(packed, finish):
     a real function crashed Taichi 1.7.4); then the face effects' thirds of the particle's six
     faces, read from ``face_force`` (``PackedGrid.face_pass``, run before). A real function is
     compiled once per kernel however many substeps call it (inlined, its thousands of lane
-    operations made compiles take seconds per call)."""
+    operations made compiles take seconds per call). The slots of a column run are unrolled
+    (``ti.static``): as a run-time loop of 2-4 slots, LLVM's loop vectorizer vectorised it across
+    the slots, fetching every lane of every slot with a gather (48 gathers a group), and the pass
+    ran 26-40 % slower on an Intel AVX-512 host (docs/performance.md, "The slots unrolled"); the
+    unrolled pass takes ~1.5 s longer to compile from an empty offline cache."""
     model = packed.model
     packed_x, packed_v = packed.packed_x, packed.packed_v
     stencil_effects, face_force = packed.stencil_effects, packed.face_force
@@ -84,7 +88,7 @@ def group_pass_function(packed, finish):
             present_column = column >= 0  # every lane
             if ti.static(not grid.periodic):
                 present_column = (column + column_step >= 0) & (column + column_step < grid.columns)
-            for s in range(first_slot, first_slot + slot_count):
+            for s in ti.static(range(first_slot, first_slot + slot_count)):
                 neighbor_row = row + grid.slot_row_step[s]
                 if 0 <= neighbor_row < grid.rows:
                     d = [packed_lanes(packed_x[c], buffer, neighbor_row, group, column_step)
@@ -106,7 +110,7 @@ def group_pass_function(packed, finish):
         for effect in ti.static(stencil_effects):  # linear stencils (``Effect`` protocol)
             for run in ti.static(effect.lane_column_runs):
                 column_step, first_slot, slot_count = ti.static(run)
-                for s in range(first_slot, first_slot + slot_count):
+                for s in ti.static(range(first_slot, first_slot + slot_count)):
                     neighbor_row = row + effect.lane_row_step[s]
                     if 0 <= neighbor_row < grid.rows:
                         coefficient = effect.lane_coefficient[row, group, s]
