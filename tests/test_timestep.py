@@ -245,6 +245,26 @@ def test_a_frame_stretched_past_redo_strain_is_redone_at_a_smaller_step():
     assert "strain_halvings" not in unguarded.run(1).frames[1].extra
 
 
+def test_a_frame_sunk_past_redo_penetration_is_redone_at_a_smaller_step():
+    """With ``simulation.redo_penetration`` below any depth, a sheet that starts with its lower
+    edge 2 cm inside the ground has its first frame redone at dt/2 (and dt/4 while halving
+    still lowers the depth): the kept state is, bit for bit, that frame simulated at the
+    smaller step, the metrics report that state's depth, only the penetration guard counts a
+    halving, and the run's step comes back afterwards."""
+    base = ("cloth.resolution=[6, 6]", "simulation.integrator=symplectic",
+            "effects.ground.height=0.62")  # the sheet hangs from 1.6 m to 0.6 m
+    guarded = Simulation(load_scene("sheet", base + ("simulation.redo_penetration=1e-9",)))
+    dt = guarded.time_step.dt
+    frame = guarded.run(1).frames[1]
+    halvings = frame.extra["penetration_halvings"]
+    assert halvings in (1, 2) and guarded.time_step.dt == dt
+    assert "strain_halvings" not in frame.extra and "tunnelling_halvings" not in frame.extra
+    reference = Simulation(load_scene("sheet", base + (f"simulation.dt={dt / 2 ** halvings!r}",)))
+    reference_frame = reference.run(1).frames[1]
+    np.testing.assert_array_equal(guarded.positions(), reference.positions())
+    assert frame.max_penetration == reference_frame.max_penetration > 0.01
+
+
 def test_each_guard_counts_only_the_halvings_it_asked_for(monkeypatch):
     """With both redo guards on (a self-collision scene with ``redo_strain``), a frame redone
     because it stretched past ``redo_strain`` counts as a strain halving, not a tunnelling one

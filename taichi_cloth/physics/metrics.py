@@ -37,6 +37,38 @@ def surface_samples(positions: np.ndarray, edges: np.ndarray, triangles: np.ndar
                            (corner[0] + corner[1] + corner[2]) / 3])
 
 
+def state_problem(model, settings, x: np.ndarray, v: np.ndarray,
+                  strain: float | None = None) -> str | None:
+    """Why the state x [m], v [m/s] of ``model``'s cloth is not usable (non-finite,
+    over-strained or too fast for ``settings``, a scene's [simulation] table), or None;
+    ``strain``: x's largest stretch strain when already taken."""
+    if not (np.isfinite(x).all() and np.isfinite(v).all()):
+        return "became non-finite"
+    strain = largest_stretch_strain(model, x) if strain is None else strain
+    if strain > settings.blowup_strain:
+        return f"exploded (max strain {strain:.3g} > simulation.blowup_strain " \
+               f"{settings.blowup_strain:g})"
+    speed = float(np.sqrt(np.max(np.sum(v * v, axis=1))))
+    if speed > settings.max_speed:
+        return f"exploded (a particle at {speed:.3g} m/s > simulation.max_speed " \
+               f"{settings.max_speed:g})"
+    return None
+
+
+def surface_penetration(effects, positions: np.ndarray, edges: np.ndarray,
+                        triangles: np.ndarray) -> np.ndarray:
+    """How deep [m] each surface sample (``surface_samples``) of the cloth at ``positions``
+    lies inside the deepest collider of ``effects`` (``Effect.penetration_depths``: capsules,
+    ground, support plate; without their margins), 0 outside: (P,)."""
+    samples = surface_samples(positions, edges, triangles)
+    depth = np.zeros(len(samples))
+    for effect in effects:
+        inside = effect.penetration_depths(samples)
+        if inside is not None:
+            depth = np.maximum(depth, inside)
+    return depth
+
+
 @dataclass
 class FrameMetrics:
     """One frame's measurements (SI units) as they go into ``stats.json``."""

@@ -35,7 +35,7 @@ from taichi_cloth.physics.integrators import INTEGRATORS, make_integrator
 from taichi_cloth.physics.integrators.conjugate_gradient import SolverBreakdown
 from taichi_cloth.physics.intersections import IntersectionCounter
 from taichi_cloth.physics.metrics import (FrameMetrics, RunRecord, largest_stretch_strain,
-                                          spring_energy, surface_samples)
+                                          spring_energy, state_problem, surface_penetration)
 from taichi_cloth.physics.model import Model
 from taichi_cloth.physics.packed_grid import packed_grid_for
 from taichi_cloth.physics.rig import BodyRig
@@ -43,9 +43,9 @@ from taichi_cloth.physics.snapshot import Snapshot
 from taichi_cloth.physics.timestep import TimeStep, choose_time_step
 from taichi_cloth.runtime import start_taichi
 
-REDO_HALVINGS = 2  # a frame that tunnelled or overstretched is redone at dt/2, then dt/4
-REDO_GAIN = 0.9  # a halving that leaves the strain above this fraction of the try before it
-# shows a strain the step does not make (a tight garment): the frame is not halved again
+REDO_HALVINGS = 2  # a frame that tunnelled, overstretched or sank in is redone at dt/2, then dt/4
+REDO_GAIN = 0.9  # a halving that leaves the strain (or depth) above this fraction of the try
+# before it shows one the step does not make (a tight garment): the frame is not halved again
 
 
 class Simulation:
@@ -69,7 +69,10 @@ class Simulation:
                       f"through each other at rest; the cloth starts tangled there",
                       file=sys.stderr)
         self.guards_crossings = "self_collision" in scene.effects  # ``guarded_frame``
-        self.redo_strain = scene.simulation.redo_strain  # ``_advance_refining``
+        # the limits of the redo guards that the scene sets (``_advance_refining``)
+        self.redo_limits = {name: limit for name, limit in (
+            ("strain", scene.simulation.redo_strain),
+            ("penetration", scene.simulation.redo_penetration)) if limit > 0}
         self._crossings = None  # crossing pairs in the current state, when counted
         self.settle_report = None  # what ``settling.settle`` did (a resumed run copies it back)
         self.model = Model(self.garment, scene.simulation.precision,
@@ -196,52 +199,32 @@ class Simulation:
         for effect in self.effects:
             effect.roll_back()
 
-    def state_problem(self, x: np.ndarray, v: np.ndarray,
-                      strain: float | None = None) -> str | None:
-        """Why the state is not usable (non-finite, over-strained or too fast), or None;
-        ``strain``: x's largest stretch strain when already taken."""
-        settings = self.scene.simulation
-        if not (np.isfinite(x).all() and np.isfinite(v).all()):
-            return "became non-finite"
-        strain = largest_stretch_strain(self.model, x) if strain is None else strain
-        if strain > settings.blowup_strain:
-            return f"exploded (max strain {strain:.3g} > simulation.blowup_strain " \
-                   f"{settings.blowup_strain:g})"
-        speed = float(np.sqrt(np.max(np.sum(v * v, axis=1))))
-        if speed > settings.max_speed:
-            return f"exploded (a particle at {speed:.3g} m/s > simulation.max_speed " \
-                   f"{settings.max_speed:g})"
-        return None
-
     def mean_free_speed(self, v: np.ndarray) -> float:
         """Mean speed [m/s] of the free (unpinned) particles at velocities v (N, 3)."""
         free = ~self.garment.pinned
         return float(np.mean(np.linalg.norm(v[free], axis=1))) if free.any() else 0.0
 
     def measure(self, frame: int, x: np.ndarray, v: np.ndarray, crossings: int | None = None,
-                halvings: dict | None = None, strain: float | None = None) -> FrameMetrics:
+                halvings: dict | None = None, strain: float | None = None,
+                depth: np.ndarray | None = None) -> FrameMetrics:
         """Metrics of a (checked) state x [m], v [m/s] at ``frame``: energies (kinetic;
         potential = the effects' + the springs'), strain, penetration of the whole surface
         (particles, edge midpoints and triangle centroids: ``metrics.surface_samples``) into
         every collider, mean speed, pairs of triangles through each other
         (``intersections``; ``crossings`` when already counted), centre of mass; the frame's
-        ``halvings`` of each redo guard on. ``strain``: x's largest stretch strain if taken."""
+        ``halvings`` of each redo guard on. ``strain``, ``depth``: x's largest stretch strain and
+        its samples' depths (``metrics.surface_penetration``) if taken."""
         mass = self.model.host_mass
         kinetic = 0.5 * float(np.sum(mass * np.sum(v * v, axis=1)))
         energies = [effect.potential_energy(x, mass) for effect in self.effects]
         potential = sum(energies) + spring_energy(self.model, x)
-        samples = surface_samples(x, self.surface_edges, self.garment.triangles)
-        depth = np.zeros(len(samples))
-        for effect in self.effects:
-            inside = effect.penetration_depths(samples)
-            if inside is not None:
-                depth = np.maximum(depth, inside)
+        if depth is None:
+            depth = surface_penetration(self.effects, x, self.surface_edges,
+                                        self.garment.triangles)
         extra = {name: value for effect, energy in zip(self.effects, energies)
                  for name, value in effect.frame_metrics(x, energy).items()}
-        if self.guards_crossings:
-            extra["tunnelling_halvings"] = (halvings or {}).get("tunnelling", 0)
-        if self.redo_strain > 0:
-            extra["strain_halvings"] = (halvings or {}).get("strain", 0)
+        for guard in (["tunnelling"] if self.guards_crossings else []) + list(self.redo_limits):
+            extra[f"{guard}_halvings"] = (halvings or {}).get(guard, 0)
         return FrameMetrics(
             frame=frame, t=self.frame_time(frame), kinetic_energy=kinetic,
             potential_energy=potential,
@@ -259,17 +242,18 @@ class Simulation:
         frame (``still``: ``physics.settling``, which takes what it needs itself). A bad
         frame is rolled back and retried with the step halved (the smaller step is kept for the
         rest of the run), up to ``simulation.max_retries`` times; then ``UnstableError``.
-        Nothing non-finite leaves. With self-collision declared or ``simulation.redo_strain``
-        set, each try is itself refined (``_advance_refining``)."""
+        Nothing non-finite leaves. With self-collision declared or ``simulation.redo_strain`` or
+        ``redo_penetration`` set, each try is itself refined (``_advance_refining``)."""
         self._back_up()
         if self.guards_crossings and self._crossings is None:
             self._crossings = self.intersections.count(self.positions())
         for attempt in range(self.scene.simulation.max_retries + 1):
-            problem, x, v, crossings, halvings, strain = self._advance_refining(frame, record,
-                                                                                still)
+            problem, x, v, crossings, halvings, strain, depth = self._advance_refining(
+                frame, record, still)
             if problem is None:
                 self._crossings = crossings
-                return None if still else self.measure(frame, x, v, crossings, halvings, strain)
+                return None if still else self.measure(frame, x, v, crossings, halvings, strain,
+                                                       depth)
             if attempt == self.scene.simulation.max_retries:
                 break
             record.retries += 1
@@ -286,20 +270,22 @@ class Simulation:
 
     def _advance_refining(self, frame: int, record: RunRecord, still: bool):
         """One try at ``frame`` from the backed-up state: (problem or None, x, v, crossing pairs
-        or None, the ``tunnelling`` and ``strain`` halvings, x's largest stretch strain or None).
-        A frame is redone at half the step, then a quarter (``REDO_HALVINGS``), the last try kept
-        (its crossings and strain in the metrics), when it ends
+        or None, the halvings of each guard, x's largest stretch strain or None, its surface
+        samples' depths or None). A frame is redone at half the step, then a quarter
+        (``REDO_HALVINGS``), the last try kept (its crossings, strain and depths in the
+        metrics), when it ends
         - with more pairs of triangles through each other than it began with, even after the
           effects' ``repair`` (self-collision declared);
-        - with a larger max strain than ``simulation.redo_strain`` (when set), unless a halving
-          left it above ``REDO_GAIN`` of the try before (the garment's strain, not the step's).
+        - with a larger max strain than ``simulation.redo_strain``, or a surface sample deeper
+          inside a collider than ``simulation.redo_penetration`` (each when set), unless a
+          halving left it above ``REDO_GAIN`` of the try before (the garment's, not the step's).
         The step goes back to the run's afterwards: a frame that a smaller step cannot mend
         costs that frame, not the run."""
         dt, substeps = self.time_step.dt, self.time_step.substeps_per_frame
-        crossings = None
-        refines = self.guards_crossings or self.redo_strain > 0
-        strain_before = math.inf
-        halved = {"tunnelling": 0, "strain": 0}
+        crossings = depth = None
+        refines = self.guards_crossings or bool(self.redo_limits)
+        before = dict.fromkeys(self.redo_limits, math.inf)
+        halved = dict.fromkeys(["tunnelling", *self.redo_limits], 0)
         for halvings in range(REDO_HALVINGS + 1 if refines else 1):
             if halvings:
                 self._roll_back()
@@ -321,22 +307,28 @@ class Simulation:
                     x, v, strain, problem = self._end_state()
                     crossings = self.intersections.count(x)
                 tunnelled = crossings > self._crossings
-            overstretched = False
-            if self.redo_strain > 0:
-                overstretched = strain > self.redo_strain and strain < REDO_GAIN * strain_before
-                strain_before = strain
-            if not (tunnelled or overstretched) or halvings == REDO_HALVINGS:
+            measured = {"strain": strain}
+            if "penetration" in self.redo_limits:
+                depth = surface_penetration(self.effects, x, self.surface_edges,
+                                            self.garment.triangles)
+                measured["penetration"] = float(depth.max(initial=0.0))
+            exceeded = [name for name, limit in self.redo_limits.items()
+                        if limit < measured[name] < REDO_GAIN * before[name]]
+            before = {name: measured[name] for name in self.redo_limits}
+            if not (tunnelled or exceeded) or halvings == REDO_HALVINGS:
                 break
             halved["tunnelling"] += tunnelled
-            halved["strain"] += overstretched
+            for name in exceeded:
+                halved[name] += 1
         self.set_time_step(dt, substeps)
-        return problem, x, v, crossings, halved, strain
+        return problem, x, v, crossings, halved, strain, depth
 
     def _end_state(self):
-        """(x [m], v [m/s], x's largest stretch strain or None, ``state_problem``) now."""
+        """(x [m], v [m/s], x's largest stretch strain or None, ``metrics.state_problem``)
+        now."""
         x, v = self.host_state()
         strain = largest_stretch_strain(self.model, x) if np.isfinite(x).all() else None
-        return x, v, strain, self.state_problem(x, v, strain)
+        return x, v, strain, state_problem(self.model, self.scene.simulation, x, v, strain)
 
     def advance_frame(self, frame: int, record: RunRecord, still: bool = False) -> None:
         """The substeps to ``frame`` (≥ 1: t from (frame − 1)/fps to frame/fps), one kernel
