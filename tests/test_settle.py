@@ -156,7 +156,7 @@ def test_a_step_halved_while_settling_is_reported_and_the_dance_takes_the_scenes
     def first_try_fails(self, frame, record, still):
         tried.append(self.time_step.dt)
         if len(tried) == 1:
-            return "failed on purpose", None, None, None, 0, None, None
+            return "failed on purpose", None, None, None, {}, None, None
         return advance(self, frame, record, still)
 
     monkeypatch.setattr(Simulation, "_advance_refining", first_try_fails)

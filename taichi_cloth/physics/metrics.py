@@ -1,6 +1,7 @@
-"""What a run measures, on the host once per frame (never inside the substep loop): the
-stretch springs' strain, the elastic energy, and the per-frame and per-run records that become
-``stats.json`` (docs/physics.md, "Metrics")."""
+"""What a run measures, on the host once per frame or per try of a frame (never inside the
+substep loop): the stretch springs' strain, the elastic energy, the check that a state is usable
+(``state_problem``), the depth of the cloth's surface in the colliders (``surface_penetration``),
+and the per-frame and per-run records that become ``stats.json`` (docs/physics.md, "Metrics")."""
 
 from dataclasses import dataclass, field, fields
 

@@ -305,6 +305,8 @@ class Simulation:
                     for effect in self.effects:
                         effect.repair(self.state_in)
                     x, v, strain, problem = self._end_state()
+                    if problem is not None:  # the mend left it unusable: ``guarded_frame``
+                        break
                     crossings = self.intersections.count(x)
                 tunnelled = crossings > self._crossings
             measured = {"strain": strain}
