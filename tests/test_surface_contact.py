@@ -132,8 +132,9 @@ def test_masks_kept_while_the_sheet_slides_across_the_bar_never_miss_a_contact(s
     (``CapsuleContact``): sliding the sheet across the bar in steps of 0.3 of the slack, some
     evaluations keep the masks and some make them again, and at every one the force is still
     −∇ of the sampled energy, with the contacts coming and going along the way. Only the
-    particles of samples that may touch the bar read their samples' forces (``touched_in``):
-    every sample pushing on the sheet has its particles among them, and not every particle is."""
+    particles of samples that may touch the bar read their samples' forces (``touched_in``),
+    and only the forces stored at this evaluation (``sample_evaluation``): every sample pushing
+    on the sheet has its particles among them, and not every particle is."""
     slack = sheet.contact.mask_slack[None]
     corners = sheet.contact.sample_corners.to_numpy()
     kept = remade = 0
@@ -141,8 +142,10 @@ def test_masks_kept_while_the_sheet_slides_across_the_bar_never_miss_a_contact(s
     for step in range(12):
         x = sheet.x + [0.0, 0.3 * slack * step - 0.1, 0.0]
         force = sheet.contact_force(x)
-        marked = sheet.contact.touched_in.to_numpy() == sheet.contact.evaluation[None]
-        pushing = np.abs(sheet.contact.sample_force.to_numpy()).sum(axis=1) > 0
+        evaluation = sheet.contact.evaluation[None]
+        marked = sheet.contact.touched_in.to_numpy() == evaluation
+        stored_now = sheet.contact.sample_evaluation.to_numpy() == evaluation
+        pushing = stored_now & (np.abs(sheet.contact.sample_force.to_numpy()).sum(axis=1) > 0)
         assert marked[corners[pushing]].all()
         marked_counts.append(int(marked.sum()))
         if sheet.contact.mask_stale[None]:

@@ -7,8 +7,9 @@ between particles that alone feel contact. Every edge midpoint and triangle cent
 contact sample too, a point p = Σ_a w_a·x_a of its 2 or 3 particles (w = ½ or ⅓), with velocity
 Σ w_a·v_a and mass m_s = Σ w_a·m_a. Its penalty energy E_s(p) gives each of its particles the
 force w_a·F_s (∂p/∂x_a = w_a·I), so momentum and the energy balance hold. A pass per force
-evaluation (``prepare``) computes every sample's F_s into a field; each particle then gathers
-its own share over its samples (``gather.incidence_lists``, a fixed order). For the implicit
+evaluation (``prepare``) computes F_s into a field for every sample that may touch a capsule
+(stamped with the evaluation's number; the others' F_s = 0 is not stored); each particle then
+gathers its own share over its samples stamped now (``gather.incidence_lists``, a fixed order). For the implicit
 solver each particle's block keeps w_a²·∂F_s/∂p of its samples and drops the couplings between
 the particles of a sample (a documented approximation: the Newton step stays a descent step, the
 contact stiffness on the diagonal is exact). With samples, a particle feels the contact
@@ -109,6 +110,8 @@ class CapsuleContact(NearMasks, Effect):
         self.sample_weights = ti.Vector.field(3, real, self.sample_count)
         self.sample_mass = ti.field(real, self.sample_count)
         self.sample_force = ti.Vector.field(3, real, self.sample_count)
+        # the evaluation (``NearMasks.evaluation``) that last stored the sample's force
+        self.sample_evaluation = ti.field(ti.i32, self.sample_count)
         self.particle_sample_start = ti.field(ti.i32, model.particle_count + 1)
         self.particle_sample = ti.field(ti.i32, max(1, len(item)))
         self.particle_sample_weight = ti.field(real, max(1, len(item)))  # w_a of the entry
@@ -141,12 +144,11 @@ class CapsuleContact(NearMasks, Effect):
             self.evaluation[None] += 1  # (``NearMasks``)
             for i_s in range(self.sample_count):
                 position, mask = self._sample_mask(x, i_s)
-                force = ti.Vector.zero(self.model.real, 3)
-                if mask != 0:
-                    force = self._contact_force(self.sample_mass[i_s], position,
-                                                self._sample_point(v, i_s), mask)
+                if mask != 0:  # else F_s = 0, not stored: its readers find an older stamp
+                    self.sample_force[i_s] = self._contact_force(
+                        self.sample_mass[i_s], position, self._sample_point(v, i_s), mask)
+                    self.sample_evaluation[i_s] = self.evaluation[None]
                     self._mark_touched(i_s)
-                self.sample_force[i_s] = force
 
     @ti.func
     def _sample_point(self, values, i_s):
@@ -226,7 +228,9 @@ class CapsuleContact(NearMasks, Effect):
             if self._sample_may_touch(i_p):
                 for k in range(self.particle_sample_start[i_p],
                                self.particle_sample_start[i_p + 1]):
-                    f += self.particle_sample_weight[k] * self.sample_force[self.particle_sample[k]]
+                    i_s = self.particle_sample[k]
+                    if self.sample_evaluation[i_s] == self.evaluation[None]:  # F_s stored now
+                        f += self.particle_sample_weight[k] * self.sample_force[i_s]
         return f
 
     @ti.func

@@ -20,7 +20,7 @@ A point near a capsule first tests its squared distance to the axes of its mask
 (``_may_touch``, through ``_particle_mask`` and ``_sample_mask``); each evaluation marks the
 particles of the samples that pass it (``touched_in``), and a particle with none reads none of
 its samples' forces (all 0): on the dancing ``hula`` a few dozen of 1,792 particles
-(docs/performance.md).
+(docs/performance.md). The masks' remaking loops run no iteration while the masks are fresh.
 
 The host class provides ``model``, ``capsule_count``, the posed capsules (``capsule_a``,
 ``capsule_b``, ``capsule_center``, ``capsule_reach_sq``, ``capsule_radius``), ``margin``,
@@ -89,20 +89,19 @@ class NearMasks:
         ti.loop_config(serialize=True)
         for _ in range(1):
             self._fit_slack()
-        for i_c in range(self.capsule_count):
-            if self.mask_stale[None]:
-                self.mask_sphere_sq[i_c] = (ti.sqrt(self.capsule_reach_sq[i_c])
-                                            + self.mask_slack[None]) ** 2
-        for i_p in range(self.model.particle_count):
-            if self.mask_stale[None]:
-                self.particle_near[i_p] = self._near_mask(x[i_p])
-                self.mask_x[i_p] = x[i_p]
-        for i_s in range(self.sample_count):
-            if self.mask_stale[None]:
-                self.sample_near[i_s] = self._near_mask(self._sample_point(x, i_s))
-        for i_c in range(self.capsule_count):
-            if self.mask_stale[None]:
-                self.mask_a[i_c], self.mask_b[i_c] = self.capsule_a[i_c], self.capsule_b[i_c]
+        # each loop's count times ``mask_stale``: no iteration while the masks are fresh (most
+        # evaluations), and still a loop of its own, parallel in a parallel launch (a loop
+        # under an ``if`` would run on one thread)
+        for i_c in range(self.capsule_count * self.mask_stale[None]):
+            self.mask_sphere_sq[i_c] = (ti.sqrt(self.capsule_reach_sq[i_c])
+                                        + self.mask_slack[None]) ** 2
+        for i_p in range(self.model.particle_count * self.mask_stale[None]):
+            self.particle_near[i_p] = self._near_mask(x[i_p])
+            self.mask_x[i_p] = x[i_p]
+        for i_s in range(self.sample_count * self.mask_stale[None]):
+            self.sample_near[i_s] = self._near_mask(self._sample_point(x, i_s))
+        for i_c in range(self.capsule_count * self.mask_stale[None]):
+            self.mask_a[i_c], self.mask_b[i_c] = self.capsule_a[i_c], self.capsule_b[i_c]
 
     @ti.func
     def _fit_slack(self):
