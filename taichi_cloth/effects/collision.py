@@ -68,11 +68,12 @@ class CapsuleContact(NearMasks, Effect):
         self.model = model
         self.capsule_radius = ti.field(model.real, self.capsule_count)
         # The pose at the time of the last ``prepare`` [m, m/s]; the bounding sphere [m, m²].
-        self.capsule_a = ti.Vector.field(3, model.real, self.capsule_count)
-        self.capsule_b = ti.Vector.field(3, model.real, self.capsule_count)
-        self.capsule_velocity_a = ti.Vector.field(3, model.real, self.capsule_count)
-        self.capsule_velocity_b = ti.Vector.field(3, model.real, self.capsule_count)
-        self.capsule_center = ti.Vector.field(3, model.real, self.capsule_count)
+        # Stored component by component (SoA): a point's loop over the capsules, which LLVM
+        # vectorises across capsules, then loads each component of 8 capsules at once instead
+        # of gathering it (docs/performance.md, "The capsules stored component by component")
+        (self.capsule_a, self.capsule_b, self.capsule_velocity_a, self.capsule_velocity_b,
+         self.capsule_center) = [ti.Vector.field(3, model.real, self.capsule_count,
+                                                 layout=ti.Layout.SOA) for _ in range(5)]
         self.capsule_reach_sq = ti.field(model.real, self.capsule_count)
         self._host_radius = np.asarray(capsule_radius, dtype=track.numpy_real)
         self.surface = config.surface and len(model.garment.triangles) > 0
