@@ -9,10 +9,10 @@ contact sample too, a point p = Σ_a w_a·x_a of its 2 or 3 particles (w = ½ or
 force w_a·F_s (∂p/∂x_a = w_a·I), so momentum and the energy balance hold. A pass per force
 evaluation (``prepare``) computes F_s into a field for every sample that may touch a capsule
 (stamped with the evaluation's number; the others' F_s = 0 is not stored); each particle then
-gathers its own share over its samples stamped now (``gather.incidence_lists``, a fixed order). For the implicit
-solver each particle's block keeps w_a²·∂F_s/∂p of its samples and drops the couplings between
-the particles of a sample (a documented approximation: the Newton step stays a descent step, the
-contact stiffness on the diagonal is exact). With samples, a particle feels the contact
+gathers its own share over its samples stamped now (``gather.incidence_lists``, a fixed
+order). For the implicit solver each particle's block keeps w_a²·∂F_s/∂p of its samples and
+drops the couplings between the particles of a sample (a documented approximation: the Newton
+step stays a descent step, the contact stiffness on the diagonal is exact). With samples, a particle feels the contact
 stiffness of its own and of its samples: Gershgorin bounds the mode by k̂·(1 + Σ w_a·m_s/m_a),
 which ``stability_modes`` reports for ``dt = "auto"``."""
 
