@@ -12,9 +12,9 @@ evaluation (``prepare``) computes F_s into a field for every sample that may tou
 gathers its own share over its samples stamped now (``gather.incidence_lists``, a fixed
 order). For the implicit solver each particle's block keeps w_a²·∂F_s/∂p of its samples and
 drops the couplings between the particles of a sample (a documented approximation: the Newton
-step stays a descent step, the contact stiffness on the diagonal is exact). With samples, a particle feels the contact
-stiffness of its own and of its samples: Gershgorin bounds the mode by k̂·(1 + Σ w_a·m_s/m_a),
-which ``stability_modes`` reports for ``dt = "auto"``."""
+step stays a descent step, the contact stiffness on the diagonal is exact). With samples, a
+particle feels the contact stiffness of its own and of its samples: Gershgorin bounds the mode
+by k̂·(1 + Σ w_a·m_s/m_a), which ``stability_modes`` reports for ``dt = "auto"``."""
 
 from dataclasses import dataclass
 
