@@ -204,6 +204,11 @@ class Simulation:
         free = ~self.garment.pinned
         return float(np.mean(np.linalg.norm(v[free], axis=1))) if free.any() else 0.0
 
+    def surface_depth(self, x: np.ndarray) -> np.ndarray:
+        """How deep [m] each surface sample of the cloth at x lies in the colliders
+        (``metrics.surface_penetration``)."""
+        return surface_penetration(self.effects, x, self.surface_edges, self.garment.triangles)
+
     def measure(self, frame: int, x: np.ndarray, v: np.ndarray, crossings: int | None = None,
                 halvings: dict | None = None, strain: float | None = None,
                 depth: np.ndarray | None = None) -> FrameMetrics:
@@ -213,14 +218,12 @@ class Simulation:
         every collider, mean speed, pairs of triangles through each other
         (``intersections``; ``crossings`` when already counted), centre of mass; the frame's
         ``halvings`` of each redo guard on. ``strain``, ``depth``: x's largest stretch strain and
-        its samples' depths (``metrics.surface_penetration``) if taken."""
+        its samples' depths (``surface_depth``) if taken."""
         mass = self.model.host_mass
         kinetic = 0.5 * float(np.sum(mass * np.sum(v * v, axis=1)))
         energies = [effect.potential_energy(x, mass) for effect in self.effects]
         potential = sum(energies) + spring_energy(self.model, x)
-        if depth is None:
-            depth = surface_penetration(self.effects, x, self.surface_edges,
-                                        self.garment.triangles)
+        depth = self.surface_depth(x) if depth is None else depth
         extra = {name: value for effect, energy in zip(self.effects, energies)
                  for name, value in effect.frame_metrics(x, energy).items()}
         for guard in (["tunnelling"] if self.guards_crossings else []) + list(self.redo_limits):
@@ -311,8 +314,7 @@ class Simulation:
                 tunnelled = crossings > self._crossings
             measured = {"strain": strain}
             if "penetration" in self.redo_limits:
-                depth = surface_penetration(self.effects, x, self.surface_edges,
-                                            self.garment.triangles)
+                depth = self.surface_depth(x)
                 measured["penetration"] = float(depth.max(initial=0.0))
             exceeded = [name for name, limit in self.redo_limits.items()
                         if limit < measured[name] < REDO_GAIN * before[name]]
