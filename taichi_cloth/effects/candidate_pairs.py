@@ -10,16 +10,17 @@ would carry it; if none is more than half the padding off, no pair missing from 
 closed by more than the padding (a point of a triangle or segment is a convex combination of its
 corners, so it moved no more than they did). A skirt turning with the dancer keeps its list.
 
-The build (``effects/spatial_hash.py``): the triangles' boxes grown by the reach on a grid of
-cells the size of a mean box, each particle walking the triangles filed in its own cell (the
-vertex–triangle pairs: a vertex and a triangle it is not a corner of), and the edges' boxes grown
-by half the reach, each edge walking the edges of higher index filed in its cells (the edge–edge
-pairs of edges sharing no particle, each found once, in the first cell both span); then the
-exact distance. The grids fill on one thread (each bucket in box order), the walks run in
-parallel, each into its own row of finds (up to ``FOUND_PER_ITEM``), and one thread lists the
-finds in particle order, then edge order (up to ``PAIRS_PER_ITEM`` per particle and edge;
-``overflow`` counts any dropped): the same list whatever the threads did. Every particle gets
-the CSR list of its (pair, corner) entries as 4·pair + corner, in pair order.
+The build: each triangle's box grown by the reach and each edge's by half of it, and the
+cloth's patches with their partners (``effects/mesh_patches.py``: the pairs of patches that may
+hold layers of cloth, flat neighbourhoods left out); each particle walks the triangles of its
+home patch's partners (the vertex–triangle pairs: a vertex and a triangle it is not a corner of,
+whose box holds it), each edge the edges of higher index of its home patch's partners (the
+edge–edge pairs of edges sharing no particle, whose boxes overlap); then the exact distance.
+The boxes and patches are made on one thread, the partners and walks in parallel, each into its
+own row (up to ``FOUND_PER_ITEM`` finds), in a fixed order, and one thread lists the finds in
+particle order, then edge order (up to ``PAIRS_PER_ITEM`` per particle and edge; ``overflow``
+counts any dropped): the same list whatever the threads did. Every particle gets the CSR list
+of its (pair, corner) entries as 4·pair + corner, in pair order.
 
 Each find keeps its pair's side record beside it (``pair_records.PairRecords``, mixed in).
 """
@@ -29,7 +30,7 @@ import taichi as ti
 
 from taichi_cloth.effects.pair_records import PairRecords
 from taichi_cloth.effects.proximity import EDGE_EDGE, VERTEX_TRIANGLE
-from taichi_cloth.effects.spatial_hash import BoxGrid
+from taichi_cloth.effects.mesh_patches import MeshPatches
 
 # Capacities: with the reach near its largest (thickness just below half the shortest edge), a
 # sheet folded onto itself, the layers a thickness apart and jittered by a quarter of it, finds
@@ -50,8 +51,12 @@ class CandidatePairs(PairRecords):
         self.reach, self.padding = reach, padding
         particles = model.particle_count
         self.triangle_count, self.edge_count = len(garment.triangles), len(garment.edges)
-        self.triangle_boxes = BoxGrid(self.triangle_count, model.real)
-        self.edge_boxes = BoxGrid(self.edge_count, model.real)
+        # boxes [m]: a triangle's grown by the reach, an edge's by half of it
+        self.triangle_lower, self.triangle_upper, self.edge_lower, self.edge_upper = (
+            ti.Vector.field(3, model.real, count)
+            for count in (self.triangle_count, self.triangle_count, self.edge_count,
+                          self.edge_count))
+        self.patches = MeshPatches(model, reach)
         self.corners = ti.Vector.field(3, ti.i32, self.triangle_count)
         self.ends = ti.Vector.field(2, ti.i32, self.edge_count)
         # the rebuild test: each particle's offset from the centroid at the last build
@@ -82,6 +87,7 @@ class CandidatePairs(PairRecords):
         self.model.uploads.add([(self.corners, triangles.astype(np.int32)),
                                 (self.ends, edges.astype(np.int32)),
                                 (self.rotation, np.eye(3)), (self.rebuild_asked, np.array(1))])
+        self.patches.upload()
 
     # what the list carries from step to step: the finds with their records (the list and the
     # entries follow from them), the positions the records and the rebuild test refer to
@@ -112,17 +118,20 @@ class CandidatePairs(PairRecords):
     @ti.func
     def update(self, x):
         """The list at positions x [m]: measured against the last build and, when stale, built
-        again: the grids on one thread (their buckets fill in box order), each particle's and
-        edge's walk in parallel into its own row of ``found`` (in bucket order: the same finds
-        in the same order whatever the threads do), then the list and the entries on one thread
-        in particle and edge order."""
+        again: the boxes and patches on one thread, each patch's partners and each particle's
+        and edge's walk in parallel into its own row (in a fixed order: the same finds in the
+        same order whatever the threads do), then the list and the entries on one thread in
+        particle and edge order."""
         ti.loop_config(serialize=True)
         for _ in range(1):
             self._measure_deformation(x, True)
         ti.loop_config(serialize=True)
         for _ in range(1):
             if self.stale[None]:
-                self._build_grids(x)
+                self._build_boxes(x)
+        for patch in range(self.patches.count):
+            if self.stale[None]:
+                self.patches.list_partners(patch, self.overflow)
         for i_p in range(self.model.particle_count):
             if self.stale[None]:
                 self._list_vertex_triangle(x, i_p)
@@ -172,37 +181,25 @@ class CandidatePairs(PairRecords):
                                or not deformed <= real(0.5 * self.padding))
 
     @ti.func
-    def _build_grids(self, x):
+    def _build_boxes(self, x):
         """The build's reference positions (offsets from the centroid that the rebuild test
-        took of x) and the boxes of the triangles and edges at x filed in their grids."""
+        took of x), the triangles' and edges' boxes at x and the patches (``MeshPatches.build``).
+        On one thread."""
         real = self.model.real
         self.rebuild_asked[None] = 0
         self.rebuilds[None] += 1
         for i in range(self.model.particle_count):
             self.built_offset[i] = x[i] - self.centroid[None]
         reach = real(self.reach)
-        self.triangle_boxes.build(self._box_size(x, self.triangle_boxes, reach, 0))
-        self.edge_boxes.build(self._box_size(x, self.edge_boxes, 0.5 * reach, 1))
-
-    @ti.func
-    def _box_size(self, x, grid: ti.template(), grow, edges: ti.template()):
-        """Each triangle's (or, with ``edges``, each edge's) box at x grown by ``grow`` [m] into
-        ``grid``; returns their mean largest side [m], the grid's cell."""
-        real = self.model.real
-        total = real(0.0)
-        for i in range(grid.count):
-            low = ti.Vector.zero(real, 3)
-            high = ti.Vector.zero(real, 3)
-            if ti.static(edges):
-                a, b = x[self.ends[i][0]], x[self.ends[i][1]]
-                low, high = ti.min(a, b), ti.max(a, b)
-            else:
-                a, b, c = x[self.corners[i][0]], x[self.corners[i][1]], x[self.corners[i][2]]
-                low, high = ti.min(ti.min(a, b), c), ti.max(ti.max(a, b), c)
-            grid.lower[i] = low - grow
-            grid.upper[i] = high + grow
-            total += (grid.upper[i] - grid.lower[i]).max()
-        return total / ti.max(grid.count, 1)
+        for t in range(self.triangle_count):
+            a, b, c = x[self.corners[t][0]], x[self.corners[t][1]], x[self.corners[t][2]]
+            self.triangle_lower[t] = ti.min(ti.min(a, b), c) - reach
+            self.triangle_upper[t] = ti.max(ti.max(a, b), c) + reach
+        for e in range(self.edge_count):
+            a, b = x[self.ends[e][0]], x[self.ends[e][1]]
+            self.edge_lower[e] = ti.min(a, b) - 0.5 * reach
+            self.edge_upper[e] = ti.max(a, b) + 0.5 * reach
+        self.patches.build(x, self.corners)
 
     @ti.func
     def _find(self, owner, other, record):
@@ -250,49 +247,49 @@ class CandidatePairs(PairRecords):
 
     @ti.func
     def _list_vertex_triangle(self, x, i_p):
-        """Particle i_p's pairs: the triangles filed in its cell whose grown box holds it, that
-        it is not a corner of, within the reach, and its crossed ones: its row of ``found``."""
-        grid = self.triangle_boxes
+        """Particle i_p's pairs: the triangles of its home patch's partners whose box holds it,
+        that it is not a corner of, within the reach, and its crossed ones: its row of
+        ``found``."""
+        patches = self.patches
         self._start_row(i_p)
-        if grid.filed[None]:
-            cell = grid.cell_of(x[i_p])
-            bucket = grid.bucket(cell)
-            for k in range(grid.bucket_start[bucket], grid.bucket_start[bucket + 1]):
-                t = grid.entry_box[k]
-                corners = self.corners[t]
-                # one test of all, evaluated whole (as the edges' below)
-                if (grid.entry_cell[k] == cell).all() and (grid.lower[t] <= x[i_p]).all() \
-                        and (x[i_p] <= grid.upper[t]).all() and (corners != i_p).all():
-                    self._consider(x, i_p, t, ti.Vector([i_p, corners[0], corners[1],
-                                                         corners[2]]), VERTEX_TRIANGLE)
+        home = patches.particle_home[i_p]
+        if home >= 0:
+            for n in range(patches.partner_count[home]):
+                partner = patches.partner[home, n]
+                for k in range(patches.triangle_start[partner],
+                               patches.triangle_start[partner + 1]):
+                    t = patches.triangle[k]
+                    corners = self.corners[t]
+                    # one test of all, evaluated whole (as the edges' below)
+                    if (self.triangle_lower[t] <= x[i_p]).all() \
+                            and (x[i_p] <= self.triangle_upper[t]).all() \
+                            and (corners != i_p).all():
+                        self._consider(x, i_p, t, ti.Vector([i_p, corners[0], corners[1],
+                                                             corners[2]]), VERTEX_TRIANGLE)
         self._keep_crossed(i_p)
 
     @ti.func
     def _list_edge_edge(self, x, e):
-        """Edge e's pairs with the edges of higher index whose grown boxes overlap its own (each
-        pair in the first cell both span), that share no particle with it, within the reach, and
-        its crossed ones: its row of ``found``."""
-        grid = self.edge_boxes
+        """Edge e's pairs with the edges of higher index of its home patch's partners whose
+        boxes overlap its own, that share no particle with it, within the reach, and its crossed
+        ones: its row of ``found``."""
+        patches = self.patches
         owner = self.model.particle_count + e
         self._start_row(owner)
-        if grid.filed[None]:
-            ends = self.ends[e]
-            low, high = grid.low_cell[e], grid.high_cell[e]
-            for cell in ti.grouped(ti.ndrange((low[0], high[0] + 1), (low[1], high[1] + 1),
-                                              (low[2], high[2] + 1))):
-                bucket = grid.bucket(cell)
-                first, end = grid.bucket_start[bucket], grid.bucket_start[bucket + 1]
-                for back in range(end - first):  # a bucket's boxes ascend: higher ones first
-                    k = end - 1 - back
-                    other = grid.entry_box[k]
+        ends = self.ends[e]
+        home = patches.edge_home[e]
+        if home >= 0:
+            for n in range(patches.partner_count[home]):
+                partner = patches.partner[home, n]
+                first, end = patches.edge_start[partner], patches.edge_start[partner + 1]
+                for back in range(end - first):  # a patch's edges ascend: higher ones first
+                    other = patches.edge[end - 1 - back]
                     if other <= e:
                         break
-                    # one test of all, evaluated whole (a kernel's ``and`` evaluates both
-                    # sides): true for ~6 % of the entries, so its branch is well predicted,
-                    # where nested tests true for 80 % and 19 % were not
                     other_ends = self.ends[other]
-                    if (grid.entry_cell[k] == cell).all() and grid.overlap(e, other) \
-                            and (grid.first_common_cell(e, other) == cell).all() \
+                    # one test of all, evaluated whole (a kernel's ``and`` evaluates both sides)
+                    if (self.edge_lower[e] <= self.edge_upper[other]).all() \
+                            and (self.edge_lower[other] <= self.edge_upper[e]).all() \
                             and other_ends[0] != ends[0] and other_ends[0] != ends[1] \
                             and other_ends[1] != ends[0] and other_ends[1] != ends[1]:
                         self._consider(x, owner, other, ti.Vector(

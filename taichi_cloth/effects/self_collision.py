@@ -26,7 +26,8 @@ stretching the springs past their length before (``_unstretch``) and not where t
 more edges through faces around it (a record that no crossing witnesses gives way).
 
 Candidate pairs (``effects/candidate_pairs.py``): every pair within the reach, thickness +
-padding, in one compact list, rebuilt only when the cloth has deformed (its best rigid motion
+padding, in one compact list, less the pairs within flat stretches of cloth, which hold no layers
+(``effects/mesh_patches.py``), rebuilt only when the cloth has deformed (its best rigid motion
 taken out) by half the padding since the last build.
 
 Gathered, no atomics on forces: each pair's force (and blocks) is computed once per evaluation,

@@ -1,5 +1,5 @@
 """A uniform grid of axis-aligned boxes hashed into buckets, rebuilt inside a kernel (no Python
-per step): the broad phase of self-collision (``effects/candidate_pairs.py``).
+per step): the broad phase of self-collision's patches (``effects/mesh_patches.py``).
 
 ``build(cell_size)`` files each of the ``count`` boxes (``lower``, ``upper`` [m], filled by the
 caller) under every grid cell ⌊p / cell_size⌋ that the box overlaps, in buckets of a hash of the

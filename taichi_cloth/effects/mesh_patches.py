@@ -1,0 +1,273 @@
+"""Self-collision's broad phase over patches: the cloth's triangles cut once into small connected
+patches, and at every build of the candidate list (``effects/candidate_pairs.py``) each patch's
+box and cone of normals, then each patch's partners: the patches whose boxes come within the
+reach of its own and that may hold a layer of cloth against it (docs/physics.md, "Patches and
+their normal cones").
+
+A stretch of cloth whose normals all lie within a cone of half-angle α < 90° about an axis is a
+height field over the plane across that axis (Volino & Magnenat-Thalmann 1994, "Efficient
+self-collision detection on smoothly discretized surface animations using geometrical shape
+regularity"; Provot 1997, "Collision and self-collision handling in cloth model dedicated to
+design garments"): it cannot lie on itself. Two of its points at a distance d are at most
+d / cos α apart along it (its slope is at most α), so with α = ``FLAT_HALF_ANGLE`` (60°) a pair
+within the thickness h is within 2h along the cloth: neighbours, not layers. Such pairs are left
+out of the list:
+
+- a patch with itself, when its own cone is flat;
+- two patches that share a particle, when the cone holding both of theirs is flat;
+- two patches that share a particle with a common neighbour, when the cone holding the cones of
+  both patches' neighbourhoods (a patch and the patches sharing a particle with it) is flat.
+
+Every other pair of patches whose boxes (grown by half the reach) overlap is a pair of partners,
+walked primitive by primitive. (The height-field argument also needs the region's outline, seen
+along the axis, not to overlap itself, which Volino and Provot test; a nearly inextensible cloth
+this flat, a few patches across, cannot overlap itself that way, and the outline is not tested.)
+
+Cut once, on the host (``cut_patches``): breadth-first over triangles sharing an edge, from the
+lowest unassigned one, up to ``PATCH_TRIANGLES`` each. Each particle and edge belongs to the patch
+of the first triangle it is part of (its home): a pair is walked from its particle's or first
+edge's home patch, through that patch's partners.
+"""
+
+import collections
+import math
+
+import numpy as np
+import taichi as ti
+
+from taichi_cloth.effects.spatial_hash import BoxGrid
+
+PATCH_TRIANGLES = 8  # triangles per patch at most: two quads by two on a grid
+FLAT_HALF_ANGLE = math.radians(60.0)  # α: a cone of normals this wide or less is flat
+PARTNERS_PER_PATCH = 96  # partners a patch may have; more count as the list's overflow
+NOT_NEAR, SHARES_PARTICLE, SHARES_NEIGHBOUR = 0, 1, 2  # how two patches are related
+
+
+def cut_patches(triangles: np.ndarray, edges: np.ndarray, particle_count: int) -> dict:
+    """The patches of a mesh of ``triangles`` (T, 3) with ``edges`` (E, 2) (module docstring):
+    each triangle's patch, each particle's and edge's home patch (−1 for a particle of no
+    triangle), and each patch's near patches with how they are related (``SHARES_PARTICLE`` or
+    ``SHARES_NEIGHBOUR``), ascending."""
+    triangles = np.asarray(triangles, np.int64)
+    by_edge = collections.defaultdict(list)
+    for t, corners in enumerate(triangles):
+        for k in range(3):
+            a, b = corners[k], corners[(k + 1) % 3]
+            by_edge[(min(a, b), max(a, b))].append(t)
+    beside = [[] for _ in triangles]
+    for sharing in by_edge.values():
+        for t in sharing:
+            beside[t].extend(u for u in sharing if u != t)
+    patch = np.full(len(triangles), -1, np.int64)
+    count = 0
+    for seed in range(len(triangles)):
+        if patch[seed] >= 0:
+            continue
+        queue, size = collections.deque([seed]), 0
+        while queue and size < PATCH_TRIANGLES:
+            t = queue.popleft()
+            if patch[t] < 0:
+                patch[t] = count
+                size += 1
+                queue.extend(u for u in sorted(beside[t]) if patch[u] < 0)
+        count += 1
+    particle_home = np.full(particle_count, -1, np.int64)
+    patches_of_particle = [set() for _ in range(particle_count)]
+    for t in range(len(triangles) - 1, -1, -1):  # the first triangle's patch written last
+        particle_home[triangles[t]] = patch[t]
+        for i in triangles[t]:
+            patches_of_particle[i].add(int(patch[t]))
+    edge_home = np.array([patch[by_edge[(min(a, b), max(a, b))][0]]
+                          if (min(a, b), max(a, b)) in by_edge else particle_home[a]
+                          for a, b in np.asarray(edges, np.int64)], np.int64)
+    sharing_particle = [set() for _ in range(count)]
+    for patches in patches_of_particle:
+        for p in patches:
+            sharing_particle[p] |= patches
+    near = []
+    for p in range(count):
+        first = sharing_particle[p] - {p}
+        second = set().union(*(sharing_particle[q] for q in first)) - first - {p}
+        near.append(sorted([(q, SHARES_PARTICLE) for q in first]
+                           + [(q, SHARES_NEIGHBOUR) for q in second]))
+    return {"triangle_patch": patch, "particle_home": particle_home, "edge_home": edge_home,
+            "near": near, "count": count}
+
+
+def members(home: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:
+    """CSR of each patch's members, ascending: (start (count + 1), the indices of ``home``)."""
+    valid = np.flatnonzero(home >= 0)
+    order = valid[np.argsort(home[valid], kind="stable")]
+    start = np.zeros(count + 1, np.int64)
+    np.cumsum(np.bincount(home[valid], minlength=count), out=start[1:])
+    return start, order
+
+
+@ti.func
+def merged_cone(axis_a, half_a, axis_b, half_b):
+    """The narrowest cone (axis, half-angle [rad]) holding two cones of unit axes and
+    half-angles (the wider one if it holds the other; a half-angle of π where the axis is
+    undefined, the cones nearly opposite)."""
+    angle = ti.acos(ti.math.clamp(axis_a.dot(axis_b), -1.0, 1.0))
+    axis, half = axis_a, half_a
+    if angle + half_b <= half_a:
+        pass
+    elif angle + half_a <= half_b:
+        axis, half = axis_b, half_b
+    else:
+        half = 0.5 * (angle + half_a + half_b)
+        if ti.sin(angle) > 1e-6:  # the axis turned from a toward b by half − half_a
+            turn = half - half_a
+            axis = (ti.sin(angle - turn) * axis_a + ti.sin(turn) * axis_b) / ti.sin(angle)
+        else:
+            half = ti.math.pi
+    return axis, half
+
+
+@ti.data_oriented
+class MeshPatches:
+    """A garment's patches (module docstring), with their boxes, cones and partners at the
+    positions of the last ``build``."""
+
+    def __init__(self, model, reach: float):
+        garment = model.garment
+        self.model, self.reach = model, reach
+        cut = cut_patches(garment.triangles, garment.edges, model.particle_count)
+        self.count = cut["count"]
+        real = model.real
+        self.triangle_start = ti.field(ti.i32, self.count + 1)
+        self.triangle = ti.field(ti.i32, len(garment.triangles))
+        self.edge_start = ti.field(ti.i32, self.count + 1)
+        self.edge = ti.field(ti.i32, len(garment.edges))
+        self.particle_home = ti.field(ti.i32, model.particle_count)
+        self.edge_home = ti.field(ti.i32, len(garment.edges))
+        near_count = sum(len(n) for n in cut["near"])
+        self.near_start = ti.field(ti.i32, self.count + 1)
+        self.near = ti.Vector.field(2, ti.i32, max(1, near_count))  # (patch, relation)
+        self.boxes = BoxGrid(self.count, real)  # grown by half the reach
+        self.normal = ti.Vector.field(3, real, len(garment.triangles))  # unit
+        self.axis = ti.Vector.field(3, real, self.count)
+        self.half = ti.field(real, self.count)  # rad
+        self.around_axis = ti.Vector.field(3, real, self.count)  # the neighbourhood's cone
+        self.around_half = ti.field(real, self.count)
+        self.partner_count = ti.field(ti.i32, self.count)
+        self.partner = ti.field(ti.i32, (self.count, PARTNERS_PER_PATCH))
+        triangle_start, triangle_order = members(cut["triangle_patch"], self.count)
+        edge_start, edge_order = members(cut["edge_home"], self.count)
+        near_start = np.concatenate([[0], np.cumsum([len(n) for n in cut["near"]])])
+        near = np.array([pair for n in cut["near"] for pair in n] or [(0, 0)], np.int32)
+        self._host = [(self.triangle_start, triangle_start), (self.triangle, triangle_order),
+                      (self.edge_start, edge_start), (self.edge, edge_order),
+                      (self.particle_home, cut["particle_home"]),
+                      (self.edge_home, cut["edge_home"]), (self.near_start, near_start),
+                      (self.near, near)]
+        self.triangle_patch = cut["triangle_patch"]  # host copy, for tests and docs
+
+    def upload(self) -> None:
+        self.model.uploads.add([(field, np.asarray(values, np.int32))
+                                for field, values in self._host])
+
+    @ti.func
+    def build(self, x, corners):
+        """Each patch's box at x [m] grown by half the reach and its cone of normals, then its
+        neighbourhood's cone, then the boxes filed in their grid. On one thread (call it under
+        a serial loop). A degenerate triangle (no normal: counted as a zero vector) makes its
+        patch's cone at least 90° wide, never flat."""
+        real = self.model.real
+        for t in range(self.normal.shape[0]):
+            a, b, c = x[corners[t][0]], x[corners[t][1]], x[corners[t][2]]
+            normal = (b - a).cross(c - a)
+            length = normal.norm()
+            self.normal[t] = ti.Vector.zero(real, 3)
+            if length > 0:
+                self.normal[t] = normal / length
+        grow = real(0.5 * self.reach)
+        size = real(0.0)
+        for p in range(self.count):
+            total = ti.Vector.zero(real, 3)
+            low = ti.Vector([real(ti.math.inf)] * 3)
+            high = -low
+            for k in range(self.triangle_start[p], self.triangle_start[p + 1]):
+                t = self.triangle[k]
+                total += self.normal[t]
+                for j in ti.static(range(3)):
+                    low = ti.min(low, x[corners[t][j]])
+                    high = ti.max(high, x[corners[t][j]])
+            axis = total / ti.max(total.norm(), real(1e-30))
+            cosine = real(1.0)
+            for k in range(self.triangle_start[p], self.triangle_start[p + 1]):
+                cosine = ti.min(cosine, axis.dot(self.normal[self.triangle[k]]))
+            half = ti.acos(ti.math.clamp(cosine, -1.0, 1.0))
+            self.axis[p], self.half[p] = axis, half
+            self.boxes.lower[p], self.boxes.upper[p] = low - grow, high + grow
+            size += (high - low).max() + 2 * grow
+        for p in range(self.count):
+            axis, half = self.axis[p], self.half[p]
+            for k in range(self.near_start[p], self.near_start[p + 1]):
+                q = self.near[k]
+                if q[1] == SHARES_PARTICLE:
+                    axis, half = merged_cone(axis, half, self.axis[q[0]], self.half[q[0]])
+            self.around_axis[p], self.around_half[p] = axis, half
+        self.boxes.build(size / ti.max(self.count, 1))
+
+    @ti.func
+    def _relation(self, p, q) -> ti.i32:
+        """How patch q is related to patch p: ``SHARES_PARTICLE``, ``SHARES_NEIGHBOUR`` or
+        ``NOT_NEAR`` (a binary search of p's near patches, ascending)."""
+        low, high = self.near_start[p], self.near_start[p + 1]
+        while low < high:
+            middle = (low + high) // 2
+            if self.near[middle][0] < q:
+                low = middle + 1
+            else:
+                high = middle
+        relation = NOT_NEAR
+        if low < self.near_start[p + 1] and self.near[low][0] == q:
+            relation = self.near[low][1]
+        return relation
+
+    @ti.func
+    def culled(self, p, q) -> ti.i32:
+        """Whether the pair of patches p and q holds no layers (module docstring). The cone
+        holding cones of half-angles a and b whose axes are θ apart is max(a, b, (θ + a + b)/2)
+        wide (``merged_cone``): flat when a ≤ α, b ≤ α and cos θ ≥ cos(2α − a − b), one cosine
+        a test."""
+        flat = ti.static(FLAT_HALF_ANGLE)
+        result = 0
+        if p == q:
+            result = int(self.half[p] <= flat)
+        else:
+            relation = self._relation(p, q)
+            if relation != NOT_NEAR:
+                axis_p, half_p = self.axis[p], self.half[p]
+                axis_q, half_q = self.axis[q], self.half[q]
+                if relation == SHARES_NEIGHBOUR:
+                    axis_p, half_p = self.around_axis[p], self.around_half[p]
+                    axis_q, half_q = self.around_axis[q], self.around_half[q]
+                if half_p <= flat and half_q <= flat:
+                    result = int(axis_p.dot(axis_q) >= ti.cos(2 * flat - half_p - half_q))
+        return result
+
+    @ti.func
+    def list_partners(self, p, overflow: ti.template()):
+        """Patch p's partners (itself included when not flat): the patches whose boxes overlap
+        its own, each once (in the first grid cell both span), that ``culled`` keeps; past
+        ``PARTNERS_PER_PATCH``, counted in ``overflow``."""
+        grid = self.boxes
+        self.partner_count[p] = 0
+        if grid.filed[None]:
+            low, high = grid.low_cell[p], grid.high_cell[p]
+            for cell in ti.grouped(ti.ndrange((low[0], high[0] + 1), (low[1], high[1] + 1),
+                                              (low[2], high[2] + 1))):
+                bucket = grid.bucket(cell)
+                for k in range(grid.bucket_start[bucket], grid.bucket_start[bucket + 1]):
+                    q = grid.entry_box[k]
+                    if (grid.entry_cell[k] == cell).all() and grid.overlap(p, q) \
+                            and (grid.first_common_cell(p, q) == cell).all():
+                        if not self.culled(p, q):
+                            n = self.partner_count[p]
+                            if n < PARTNERS_PER_PATCH:
+                                self.partner[p, n] = q
+                                self.partner_count[p] = n + 1
+                            else:
+                                ti.atomic_add(overflow[None], 1)
