@@ -539,54 +539,50 @@ def folded_positions(model, gap: float = 0.006, jitter: float = 0.002) -> np.nda
     return x + np.random.default_rng(7).uniform(-jitter, jitter, x.shape)
 
 
-def merged_cone(axis_a, half_a, axis_b, half_b):
-    """The narrowest cone holding two (unit axis, half-angle) cones: the wider if it holds the
-    other, else half the sum of the half-angles and the angle between the axes, about an axis
-    turned from a toward b (π wide where the axes are opposite)."""
-    angle = np.arccos(np.clip(axis_a @ axis_b, -1.0, 1.0))
-    if angle + half_b <= half_a:
-        return axis_a, half_a
-    if angle + half_a <= half_b:
-        return axis_b, half_b
-    half = 0.5 * (angle + half_a + half_b)
-    if np.sin(angle) <= 1e-6:
-        return axis_a, np.pi
-    turn = half - half_a
-    return (np.sin(angle - turn) * axis_a + np.sin(turn) * axis_b) / np.sin(angle), half
-
-
 def flat_patch_pairs(x: np.ndarray, triangles: np.ndarray, triangle_patch: np.ndarray):
     """Which pairs of patches (of the given cut) hold no layers at x, as a function of two
-    patch indices: a patch with itself when its normals lie within 60° of their mean; patches
-    sharing a particle when the cone holding both is that narrow; patches sharing a particle
-    with a common patch when the cone holding both neighbourhoods' cones is (an oracle
-    written apart from ``effects/mesh_patches.py``: sets of particles, NumPy cones)."""
+    patch indices (an oracle written apart from ``effects/mesh_patches.py``: sets of particles,
+    angles from NumPy's arccos). A patch's cone: about its triangles' mean unit normal, as wide
+    as the widest angle to one of them; a neighbourhood's (a patch and the patches sharing a
+    particle with it): about the mean of their axes, as wide as the widest angle to one of
+    their axes plus that cone's own half-angle. Two cones fit in one within 60° when both are
+    and the angle between their axes plus both half-angles is at most 120°. Left out: a patch
+    with itself when its cone is flat, patches sharing a particle when their cones fit in a flat
+    one, patches sharing a particle with a common patch when their neighbourhoods' cones do."""
     count = triangle_patch.max() + 1
     normal = np.cross(x[triangles[:, 1]] - x[triangles[:, 0]], x[triangles[:, 2]] - x[triangles[:, 0]])
     normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+
+    def angle(u, v):
+        return np.arccos(np.clip(u @ v, -1.0, 1.0))
+
     cones = []
     for p in range(count):
         mine = normal[triangle_patch == p]
         axis = mine.sum(axis=0) / np.linalg.norm(mine.sum(axis=0))
-        cones.append((axis, np.arccos(np.clip((mine @ axis).min(), -1.0, 1.0))))
+        cones.append((axis, max(angle(axis, n) for n in mine)))
     particles = [set(triangles[triangle_patch == p].ravel()) for p in range(count)]
     touching = [{q for q in range(count) if q != p and particles[p] & particles[q]}
                 for p in range(count)]
     around = []
     for p in range(count):
-        cone = cones[p]
-        for q in sorted(touching[p]):
-            cone = merged_cone(*cone, *cones[q])
-        around.append(cone)
+        members = [cones[q] for q in [p, *sorted(touching[p])]]
+        axis = sum(a for a, _ in members)
+        axis = axis / np.linalg.norm(axis)
+        around.append((axis, max(angle(axis, a) + h for a, h in members)))
     flat = np.radians(60.0)
+
+    def fit(first, second):
+        return first[1] <= flat and second[1] <= flat and \
+            angle(first[0], second[0]) + first[1] + second[1] <= 2 * flat
 
     def culled(p, q):
         if p == q:
             return cones[p][1] <= flat
         if q in touching[p]:
-            return merged_cone(*cones[p], *cones[q])[1] <= flat
+            return fit(cones[p], cones[q])
         if touching[p] & touching[q]:
-            return merged_cone(*around[p], *around[q])[1] <= flat
+            return fit(around[p], around[q])
         return False
     return culled
 

@@ -40,6 +40,7 @@ from taichi_cloth.effects.spatial_hash import BoxGrid
 PATCH_TRIANGLES = 8  # triangles per patch at most: two quads by two on a grid
 FLAT_HALF_ANGLE = math.radians(60.0)  # α: a cone of normals this wide or less is flat
 PARTNERS_PER_PATCH = 96  # partners a patch may have; more count as the list's overflow
+NOT_FLAT = -2.0  # the room's cosine of a cone wider than α
 NOT_NEAR, SHARES_PARTICLE, SHARES_NEIGHBOUR = 0, 1, 2  # how two patches are related
 
 
@@ -104,24 +105,11 @@ def members(home: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 @ti.func
-def merged_cone(axis_a, half_a, axis_b, half_b):
-    """The narrowest cone (axis, half-angle [rad]) holding two cones of unit axes and
-    half-angles (the wider one if it holds the other; a half-angle of π where the axis is
-    undefined, the cones nearly opposite)."""
-    angle = ti.acos(ti.math.clamp(axis_a.dot(axis_b), -1.0, 1.0))
-    axis, half = axis_a, half_a
-    if angle + half_b <= half_a:
-        pass
-    elif angle + half_a <= half_b:
-        axis, half = axis_b, half_b
-    else:
-        half = 0.5 * (angle + half_a + half_b)
-        if ti.sin(angle) > 1e-6:  # the axis turned from a toward b by half − half_a
-            turn = half - half_a
-            axis = (ti.sin(angle - turn) * axis_a + ti.sin(turn) * axis_b) / ti.sin(angle)
-        else:
-            half = ti.math.pi
-    return axis, half
+def room_less_angle(room, cosine):
+    """(cos, sin) of room − θ for a room (cos, sin) in [0, α] and an angle θ ∈ [0, π] of cosine
+    ``cosine``: negative (sin < 0) when θ is wider than the room."""
+    sine = ti.sqrt(ti.max(1.0 - cosine * cosine, 0.0))
+    return ti.Vector([room[0] * cosine + room[1] * sine, room[1] * cosine - room[0] * sine])
 
 
 @ti.data_oriented
@@ -145,11 +133,10 @@ class MeshPatches:
         self.near_start = ti.field(ti.i32, self.count + 1)
         self.near = ti.Vector.field(2, ti.i32, max(1, near_count))  # (patch, relation)
         self.boxes = BoxGrid(self.count, real)  # grown by half the reach
-        self.normal = ti.Vector.field(3, real, len(garment.triangles))  # unit
-        self.axis = ti.Vector.field(3, real, self.count)
-        self.half = ti.field(real, self.count)  # rad
-        self.around_axis = ti.Vector.field(3, real, self.count)  # the neighbourhood's cone
-        self.around_half = ti.field(real, self.count)
+        # each patch's cone and its neighbourhood's: the unit axis and the room α − half-angle
+        # left to flat, as (cos, sin) (``NOT_FLAT`` in the cosine where the cone is wider than α)
+        self.axis, self.around_axis = (ti.Vector.field(3, real, self.count) for _ in range(2))
+        self.room, self.around_room = (ti.Vector.field(2, real, self.count) for _ in range(2))
         self.partner_count = ti.field(ti.i32, self.count)
         self.partner = ti.field(ti.i32, (self.count, PARTNERS_PER_PATCH))
         triangle_start, triangle_order = members(cut["triangle_patch"], self.count)
@@ -168,46 +155,79 @@ class MeshPatches:
                                 for field, values in self._host])
 
     @ti.func
-    def build(self, x, corners):
-        """Each patch's box at x [m] grown by half the reach and its cone of normals, then its
-        neighbourhood's cone, then the boxes filed in their grid. On one thread (call it under
-        a serial loop). A degenerate triangle (no normal: counted as a zero vector) makes its
-        patch's cone at least 90° wide, never flat."""
+    def cone(self, x, corners, p):
+        """Patch p's box at x [m] grown by half the reach, and its cone of normals: the axis
+        the mean of its triangles' unit normals, the half-angle h the widest angle from it to
+        one of them; stored as the room α − h (cos, sin), or ``NOT_FLAT``. A degenerate
+        triangle (no normal: a zero vector) makes the cone at least 90° wide, never flat. No
+        inverse trigonometry: cos(α − h) and sin(α − h) from cos h."""
         real = self.model.real
-        for t in range(self.normal.shape[0]):
-            a, b, c = x[corners[t][0]], x[corners[t][1]], x[corners[t][2]]
-            normal = (b - a).cross(c - a)
-            length = normal.norm()
-            self.normal[t] = ti.Vector.zero(real, 3)
-            if length > 0:
-                self.normal[t] = normal / length
+        total = ti.Vector.zero(real, 3)
+        low = ti.Vector([real(ti.math.inf)] * 3)
+        high = -low
+        for k in range(self.triangle_start[p], self.triangle_start[p + 1]):
+            total += self._unit_normal(x, corners, self.triangle[k])
+            for j in ti.static(range(3)):
+                low = ti.min(low, x[corners[self.triangle[k]][j]])
+                high = ti.max(high, x[corners[self.triangle[k]][j]])
+        axis = total / ti.max(total.norm(), real(1e-30))
+        cosine = real(1.0)  # cos h
+        for k in range(self.triangle_start[p], self.triangle_start[p + 1]):
+            cosine = ti.min(cosine, axis.dot(self._unit_normal(x, corners, self.triangle[k])))
+        flat = ti.static(FLAT_HALF_ANGLE)
+        room = ti.Vector([real(NOT_FLAT), 0.0])
+        if cosine >= ti.static(math.cos(FLAT_HALF_ANGLE)):
+            sine = ti.sqrt(ti.max(1.0 - cosine * cosine, 0.0))
+            room = ti.Vector([ti.static(math.cos(flat)) * cosine
+                              + ti.static(math.sin(flat)) * sine,
+                              ti.static(math.sin(flat)) * cosine
+                              - ti.static(math.cos(flat)) * sine])
+        self.axis[p], self.room[p] = axis, room
         grow = real(0.5 * self.reach)
-        size = real(0.0)
+        self.boxes.lower[p], self.boxes.upper[p] = low - grow, high + grow
+
+    @ti.func
+    def _unit_normal(self, x, corners, t):
+        a, b, c = x[corners[t][0]], x[corners[t][1]], x[corners[t][2]]
+        normal = (b - a).cross(c - a)
+        return normal / ti.max(normal.norm(), self.model.real(1e-30))
+
+    @ti.func
+    def neighbourhood_cone(self, p):
+        """The cone of patch p and the patches sharing a particle with it (their cones from
+        ``cone``): about the mean of their axes, the half-angle H the widest of a member's
+        angle from it plus its own half-angle; stored as the room α − H, the least of the
+        members' rooms less their angles, or ``NOT_FLAT``."""
+        real = self.model.real
+        total = self.axis[p]
+        for k in range(self.near_start[p], self.near_start[p + 1]):
+            if self.near[k][1] == SHARES_PARTICLE:
+                total += self.axis[self.near[k][0]]
+        axis = total / ti.max(total.norm(), real(1e-30))
+        # each member's room less its angle from the axis, in [−π, α]: ≥ 0 (sin and cos ≥ 0)
+        # for every member if the neighbourhood is flat, the least of them its room (the
+        # largest cosine, all being in [0, α])
+        room = room_less_angle(self.room[p], ti.math.clamp(axis.dot(self.axis[p]), -1.0, 1.0))
+        flat = int(self.room[p][0] >= -1.0 and room[0] >= 0 and room[1] >= 0)
+        for k in range(self.near_start[p], self.near_start[p + 1]):
+            q = self.near[k][0]
+            if self.near[k][1] == SHARES_PARTICLE:
+                left = room_less_angle(self.room[q],
+                                       ti.math.clamp(axis.dot(self.axis[q]), -1.0, 1.0))
+                flat &= int(self.room[q][0] >= -1.0 and left[0] >= 0 and left[1] >= 0)
+                if left[0] > room[0]:
+                    room = left
+        if not flat:
+            room = ti.Vector([real(NOT_FLAT), 0.0])
+        self.around_axis[p], self.around_room[p] = axis, room
+
+    @ti.func
+    def file_boxes(self):
+        """The patches' boxes (from ``cone``) filed in their grid, on cells of their mean
+        largest side. On one thread (call it under a serial loop)."""
+        size = self.model.real(0.0)
         for p in range(self.count):
-            total = ti.Vector.zero(real, 3)
-            low = ti.Vector([real(ti.math.inf)] * 3)
-            high = -low
-            for k in range(self.triangle_start[p], self.triangle_start[p + 1]):
-                t = self.triangle[k]
-                total += self.normal[t]
-                for j in ti.static(range(3)):
-                    low = ti.min(low, x[corners[t][j]])
-                    high = ti.max(high, x[corners[t][j]])
-            axis = total / ti.max(total.norm(), real(1e-30))
-            cosine = real(1.0)
-            for k in range(self.triangle_start[p], self.triangle_start[p + 1]):
-                cosine = ti.min(cosine, axis.dot(self.normal[self.triangle[k]]))
-            half = ti.acos(ti.math.clamp(cosine, -1.0, 1.0))
-            self.axis[p], self.half[p] = axis, half
-            self.boxes.lower[p], self.boxes.upper[p] = low - grow, high + grow
-            size += (high - low).max() + 2 * grow
-        for p in range(self.count):
-            axis, half = self.axis[p], self.half[p]
-            for k in range(self.near_start[p], self.near_start[p + 1]):
-                q = self.near[k]
-                if q[1] == SHARES_PARTICLE:
-                    axis, half = merged_cone(axis, half, self.axis[q[0]], self.half[q[0]])
-            self.around_axis[p], self.around_half[p] = axis, half
+            size += (self.boxes.upper[p] - self.boxes.lower[p]).max()
         self.boxes.build(size / ti.max(self.count, 1))
 
     @ti.func
@@ -228,24 +248,23 @@ class MeshPatches:
 
     @ti.func
     def culled(self, p, q) -> ti.i32:
-        """Whether the pair of patches p and q holds no layers (module docstring). The cone
-        holding cones of half-angles a and b whose axes are θ apart is max(a, b, (θ + a + b)/2)
-        wide (``merged_cone``): flat when a ≤ α, b ≤ α and cos θ ≥ cos(2α − a − b), one cosine
-        a test."""
-        flat = ti.static(FLAT_HALF_ANGLE)
+        """Whether the pair of patches p and q holds no layers (module docstring). Cones of
+        half-angles a, b ≤ α whose axes are θ apart fit in one of max(a, b, (θ + a + b)/2), flat
+        when θ ≤ (α − a) + (α − b): cos θ ≥ cos of the rooms' sum (at most 2α < π)."""
         result = 0
         if p == q:
-            result = int(self.half[p] <= flat)
+            result = int(self.room[p][0] >= -1.0)
         else:
             relation = self._relation(p, q)
             if relation != NOT_NEAR:
-                axis_p, half_p = self.axis[p], self.half[p]
-                axis_q, half_q = self.axis[q], self.half[q]
+                axis_p, room_p = self.axis[p], self.room[p]
+                axis_q, room_q = self.axis[q], self.room[q]
                 if relation == SHARES_NEIGHBOUR:
-                    axis_p, half_p = self.around_axis[p], self.around_half[p]
-                    axis_q, half_q = self.around_axis[q], self.around_half[q]
-                if half_p <= flat and half_q <= flat:
-                    result = int(axis_p.dot(axis_q) >= ti.cos(2 * flat - half_p - half_q))
+                    axis_p, room_p = self.around_axis[p], self.around_room[p]
+                    axis_q, room_q = self.around_axis[q], self.around_room[q]
+                if room_p[0] >= -1.0 and room_q[0] >= -1.0:
+                    result = int(axis_p.dot(axis_q)
+                                 >= room_p[0] * room_q[0] - room_p[1] * room_q[1])
         return result
 
     @ti.func
