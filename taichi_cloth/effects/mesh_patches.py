@@ -39,7 +39,8 @@ from taichi_cloth.effects.spatial_hash import BoxGrid
 
 PATCH_TRIANGLES = 8  # triangles per patch at most: two quads by two on a grid
 FLAT_HALF_ANGLE = math.radians(60.0)  # α: a cone of normals this wide or less is flat
-PARTNERS_PER_PATCH = 96  # partners a patch may have; more count as the list's overflow
+MOST_PARTNERS = 512  # partners a patch may have (or every patch, when fewer); more count as the
+# list's overflow
 NOT_FLAT = -2.0  # the room's cosine of a cone wider than α
 NOT_NEAR, SHARES_PARTICLE, SHARES_NEIGHBOUR = 0, 1, 2  # how two patches are related
 
@@ -138,7 +139,8 @@ class MeshPatches:
         self.axis, self.around_axis = (ti.Vector.field(3, real, self.count) for _ in range(2))
         self.room, self.around_room = (ti.Vector.field(2, real, self.count) for _ in range(2))
         self.partner_count = ti.field(ti.i32, self.count)
-        self.partner = ti.field(ti.i32, (self.count, PARTNERS_PER_PATCH))
+        self.partner_capacity = min(self.count, MOST_PARTNERS)
+        self.partner = ti.field(ti.i32, (self.count, self.partner_capacity))
         triangle_start, triangle_order = members(cut["triangle_patch"], self.count)
         edge_start, edge_order = members(cut["edge_home"], self.count)
         near_start = np.concatenate([[0], np.cumsum([len(n) for n in cut["near"]])])
@@ -271,7 +273,7 @@ class MeshPatches:
     def list_partners(self, p, overflow: ti.template()):
         """Patch p's partners (itself included when not flat): the patches whose boxes overlap
         its own, each once (in the first grid cell both span), that ``culled`` keeps; past
-        ``PARTNERS_PER_PATCH``, counted in ``overflow``."""
+        ``partner_capacity`` (every patch, or ``MOST_PARTNERS``), counted in ``overflow``."""
         grid = self.boxes
         self.partner_count[p] = 0
         if grid.filed[None]:
@@ -285,7 +287,7 @@ class MeshPatches:
                             and (grid.first_common_cell(p, q) == cell).all():
                         if not self.culled(p, q):
                             n = self.partner_count[p]
-                            if n < PARTNERS_PER_PATCH:
+                            if n < ti.static(self.partner_capacity):
                                 self.partner[p, n] = q
                                 self.partner_count[p] = n + 1
                             else:
