@@ -3,6 +3,7 @@ crossing edges against −∇ of the penalty energy ½·m·k̂·(thickness − d
 (the distance to a plane, the distance between two lines), and momentum conserved; the scene
 `fold` keeps every frame free of intersecting triangles where the metric sees them without it."""
 
+import collections
 import functools
 import json
 
@@ -510,16 +511,26 @@ def closest_distance_segments(a, b, c, d):
 
 
 @functools.cache
-def folded_sheet_physics(columns: int = 8, side: float = 0.14):
+def folded_sheet_physics(columns: int = 8, side: float = 0.14, rewound: bool = False):
     """A columns × columns sheet of ``side`` [m] (by default 2 cm spacing) with self-collision at
     its defaults (thickness 4 mm, reach 8 mm), built once each: (model, forces, state, output
-    field, effect)."""
+    field, effect). ``rewound``: the triangles of the half that ``folded_positions`` turns over
+    wound the other way (a garment file need not keep its winding)."""
+    from dataclasses import replace
+
     from taichi_cloth.cloth.garment import build_garment
     from taichi_cloth.config.materials import PRESETS
     from taichi_cloth.config.tables import ClothConfig
     cloth = ClothConfig(shape="sheet", resolution=(columns, columns), size=(side, side), height=1.0,
                         orientation="horizontal", pin="none")
-    model = Model(build_garment(cloth, PRESETS["cotton"]), "f64")
+    garment = build_garment(cloth, PRESETS["cotton"])
+    if rewound:
+        x = garment.positions
+        turned = x[garment.triangles].mean(axis=1)[:, 0] > 0.5 * (x[:, 0].min() + x[:, 0].max())
+        triangles = garment.triangles.copy()
+        triangles[turned] = triangles[turned][:, ::-1]
+        garment = replace(garment, triangles=triangles)
+    model = Model(garment, "f64")
     physics = assemble(model, [(SelfCollision, SelfCollisionSettings())])
     effect = physics.effects[0]
     return model, physics.forces, model.state(), ti.Vector.field(3, ti.f64, model.particle_count), \
@@ -539,7 +550,8 @@ def folded_positions(model, gap: float = 0.006, jitter: float = 0.002) -> np.nda
     return x + np.random.default_rng(7).uniform(-jitter, jitter, x.shape)
 
 
-def flat_patch_pairs(x: np.ndarray, triangles: np.ndarray, triangle_patch: np.ndarray):
+def flat_patch_pairs(x: np.ndarray, triangles: np.ndarray, triangle_patch: np.ndarray,
+                     flat_degrees: float = 60.0):
     """Which pairs of patches (of the given cut) hold no layers at x, as a function of two
     patch indices (an oracle written apart from ``effects/mesh_patches.py``: sets of particles,
     angles from NumPy's arccos). A patch's cone: about its triangles' mean unit normal, as wide
@@ -548,7 +560,8 @@ def flat_patch_pairs(x: np.ndarray, triangles: np.ndarray, triangle_patch: np.nd
     their axes plus that cone's own half-angle. Two cones fit in one within 60° when both are
     and the angle between their axes plus both half-angles is at most 120°. Left out: a patch
     with itself when its cone is flat, patches sharing a particle when their cones fit in a flat
-    one, patches sharing a particle with a common patch when their neighbourhoods' cones do."""
+    one, patches sharing a particle with a common patch when their neighbourhoods' cones do.
+    The triangles must be wound alike."""
     count = triangle_patch.max() + 1
     normal = np.cross(x[triangles[:, 1]] - x[triangles[:, 0]], x[triangles[:, 2]] - x[triangles[:, 0]])
     normal /= np.linalg.norm(normal, axis=1, keepdims=True)
@@ -570,7 +583,7 @@ def flat_patch_pairs(x: np.ndarray, triangles: np.ndarray, triangle_patch: np.nd
         axis = sum(a for a, _ in members)
         axis = axis / np.linalg.norm(axis)
         around.append((axis, max(angle(axis, a) + h for a, h in members)))
-    flat = np.radians(60.0)
+    flat = np.radians(flat_degrees)
 
     def fit(first, second):
         return first[1] <= flat and second[1] <= flat and \
@@ -667,7 +680,77 @@ def test_the_candidate_list_holds_exactly_the_layered_pairs_within_the_reach(col
     # edge or two from its other primitive: neighbours along the cloth, never two layers
     assert len(left_out) > 0 and max(left_out) <= 2
     assert listed_pairs(effect.pairs) == expected
+    assert len(expected) == effect.pairs.pair_count[None]  # each pair listed once
     assert effect.pairs.overflow[None] == 0
+
+
+@ti.kernel
+def culled_pairs_of_patches(patches: ti.template(), out: ti.types.ndarray()):
+    for p, q in ti.ndrange(patches.count, patches.count):
+        out[p, q] = patches.culled(p, q)
+
+
+def bent_positions(model, radius: float) -> np.ndarray:
+    """The sheet rolled about the z axis onto a cylinder of ``radius`` [m] (its normals turning
+    by the sheet's width over the radius), then jittered by 0.5 mm."""
+    x = model.garment.positions.copy()
+    across = x[:, 0] - x[:, 0].mean()
+    x[:, 0], x[:, 1] = radius * np.sin(across / radius), x[:, 1] + radius * (1 - np.cos(across / radius))
+    return x + np.random.default_rng(3).uniform(-0.0005, 0.0005, x.shape)
+
+
+@pytest.mark.parametrize("shape", ["folded", "bent 6 cm", "bent 3 cm", "bent 2 cm"])
+def test_which_pairs_of_patches_are_left_out_agrees_with_the_cones_computed_apart(shape):
+    """Every pair of patches, near or not, within the reach or not, on the dense sheet folded or
+    rolled onto cylinders (every ring of neighbours then flat, some and none): ``culled`` against
+    ``flat_patch_pairs``; pairs within 10⁻⁶° of the 60° bound are skipped, and each case has
+    patches left out on both grounds (touching, and touching a common patch) and kept."""
+    model, forces, state, out, effect = folded_sheet_physics(12, 0.0915)
+    x = folded_positions(model, 0.004, 0.001) if shape == "folded" else \
+        bent_positions(model, float(shape.split()[1]) / 100)
+    state.x.from_numpy(x)
+    state.v.fill(0.0)
+    effect.pairs.ask_rebuild()
+    forces.evaluate(state.x, state.v, 0.0, out)
+    patches = effect.pairs.patches
+    culled = np.zeros((patches.count, patches.count), np.int32)
+    culled_pairs_of_patches(patches, culled)
+    triangles, triangle_patch = model.garment.triangles, patches.triangle_patch
+    narrower, wider = (flat_patch_pairs(x, triangles, triangle_patch, 60.0 + step)
+                       for step in (-1e-6, 1e-6))
+    particles = [set(triangles[triangle_patch == p].ravel()) for p in range(patches.count)]
+    touching = [{q for q in range(patches.count) if particles[p] & particles[q]}
+                for p in range(patches.count)]
+    left_out = collections.Counter()  # (how near, left out): pairs of patches
+    for p, q in np.ndindex(culled.shape):
+        if narrower(p, q) == wider(p, q):
+            assert culled[p, q] == narrower(p, q), (p, q)
+            near = "itself" if p == q else "touching" if q in touching[p] else \
+                "common" if touching[p] & touching[q] else "apart"
+            left_out[(near, bool(culled[p, q]))] += 1
+    assert sum(left_out.values()) > 0.99 * culled.size
+    assert left_out[("apart", True)] == 0
+    if shape == "bent 6 cm":  # every neighbourhood flat
+        assert left_out[("touching", False)] == left_out[("common", False)] == 0
+    else:  # both rings of neighbours left out and kept
+        assert left_out[("common", True)] > 0 and left_out[("common", False)] > 0
+
+
+def test_a_fold_through_triangles_wound_the_other_way_is_listed_the_same():
+    """The folded sheet whose turned-over half's triangles are wound the other way (their raw
+    normals then agree with the layer under them): the same pairs listed as when wound alike
+    (a triangle's corners compared as a set)."""
+    lists = []
+    for rewound in (False, True):
+        model, forces, state, out, effect = folded_sheet_physics(12, 0.0915, rewound)
+        state.x.from_numpy(folded_positions(model, 0.004, 0.001))
+        state.v.fill(0.0)
+        effect.pairs.ask_rebuild()
+        forces.evaluate(state.x, state.v, 0.0, out)
+        lists.append({(kind, ids[0], tuple(sorted(ids[1:]))) if kind == 0 else (kind, ids)
+                      for kind, ids in listed_pairs(effect.pairs)})
+    assert len(lists[0]) > 100
+    assert lists[1] == lists[0]
 
 
 def test_a_rigid_motion_keeps_the_list_and_turns_the_forces_a_deformation_rebuilds_it():

@@ -24,7 +24,9 @@ along the axis, not to overlap itself, which Volino and Provot test; a nearly in
 this flat, a few patches across, cannot overlap itself that way, and the outline is not tested.)
 
 Cut once, on the host (``cut_patches``): breadth-first over triangles sharing an edge, from the
-lowest unassigned one, up to ``PATCH_TRIANGLES`` each. Each particle and edge belongs to the patch
+lowest unassigned one, up to ``PATCH_TRIANGLES`` each; each triangle's normal is turned to agree
+with its neighbours' (``orient``), so the cones do not depend on the winding of the garment's
+file. Each particle and edge belongs to the patch
 of the first triangle it is part of (its home): a pair is walked from its particle's or first
 edge's home patch, through that patch's partners.
 """
@@ -46,10 +48,11 @@ NOT_NEAR, SHARES_PARTICLE, SHARES_NEIGHBOUR = 0, 1, 2  # how two patches are rel
 
 
 def cut_patches(triangles: np.ndarray, edges: np.ndarray, particle_count: int) -> dict:
-    """The patches of a mesh of ``triangles`` (T, 3) with ``edges`` (E, 2) (module docstring):
-    each triangle's patch, each particle's and edge's home patch (−1 for a particle of no
-    triangle), and each patch's near patches with how they are related (``SHARES_PARTICLE`` or
-    ``SHARES_NEIGHBOUR``), ascending."""
+    """The patches of a mesh of ``triangles`` (T, 3) with ``edges`` (E, 2), the triangles'
+    edges (module docstring): each triangle's patch and its orientation (``orient``), each
+    particle's and edge's home patch (−1 for a particle of no triangle), and each patch's near
+    patches with how they are related (``SHARES_PARTICLE`` or ``SHARES_NEIGHBOUR``),
+    ascending."""
     triangles = np.asarray(triangles, np.int64)
     by_edge = collections.defaultdict(list)
     for t, corners in enumerate(triangles):
@@ -60,6 +63,7 @@ def cut_patches(triangles: np.ndarray, edges: np.ndarray, particle_count: int) -
     for sharing in by_edge.values():
         for t in sharing:
             beside[t].extend(u for u in sharing if u != t)
+    sign = orient(triangles, beside)
     patch = np.full(len(triangles), -1, np.int64)
     count = 0
     for seed in range(len(triangles)):
@@ -80,7 +84,6 @@ def cut_patches(triangles: np.ndarray, edges: np.ndarray, particle_count: int) -
         for i in triangles[t]:
             patches_of_particle[i].add(int(patch[t]))
     edge_home = np.array([patch[by_edge[(min(a, b), max(a, b))][0]]
-                          if (min(a, b), max(a, b)) in by_edge else particle_home[a]
                           for a, b in np.asarray(edges, np.int64)], np.int64)
     sharing_particle = [set() for _ in range(count)]
     for patches in patches_of_particle:
@@ -92,8 +95,35 @@ def cut_patches(triangles: np.ndarray, edges: np.ndarray, particle_count: int) -
         second = set().union(*(sharing_particle[q] for q in first)) - first - {p}
         near.append(sorted([(q, SHARES_PARTICLE) for q in first]
                            + [(q, SHARES_NEIGHBOUR) for q in second]))
-    return {"triangle_patch": patch, "particle_home": particle_home, "edge_home": edge_home,
-            "near": near, "count": count}
+    return {"triangle_patch": patch, "triangle_sign": sign, "particle_home": particle_home,
+            "edge_home": edge_home, "near": near, "count": count}
+
+
+def orient(triangles: np.ndarray, beside: list) -> np.ndarray:
+    """±1 per triangle: the sign that turns its normal (from its corners' order) to agree with
+    its neighbours', breadth-first over triangles sharing an edge from the lowest of each
+    connected piece (+1). A neighbour that runs the shared edge the same way is wound the other
+    way. The cones of normals then do not depend on the mesh's winding, which a garment's file
+    need not keep consistent (a non-orientable piece keeps the first sign each triangle gets)."""
+    sign = np.zeros(len(triangles), np.int64)
+
+    def runs(t, a, b):
+        corners = list(triangles[t])
+        return corners[(corners.index(a) + 1) % 3] == b
+
+    for seed in range(len(triangles)):
+        if sign[seed]:
+            continue
+        sign[seed] = 1
+        queue = collections.deque([seed])
+        while queue:
+            t = queue.popleft()
+            for u in sorted(beside[t]):
+                if not sign[u]:
+                    a, b = sorted(set(triangles[t]) & set(triangles[u]))[:2]
+                    sign[u] = -sign[t] if runs(t, a, b) == runs(u, a, b) else sign[t]
+                    queue.append(u)
+    return sign
 
 
 def members(home: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:
@@ -128,6 +158,7 @@ class MeshPatches:
         self.triangle = ti.field(ti.i32, len(garment.triangles))
         self.edge_start = ti.field(ti.i32, self.count + 1)
         self.edge = ti.field(ti.i32, len(garment.edges))
+        self.triangle_sign = ti.field(ti.i32, len(garment.triangles))  # ``orient``
         self.particle_home = ti.field(ti.i32, model.particle_count)
         self.edge_home = ti.field(ti.i32, len(garment.edges))
         near_count = sum(len(n) for n in cut["near"])
@@ -147,6 +178,7 @@ class MeshPatches:
         near = np.array([pair for n in cut["near"] for pair in n] or [(0, 0)], np.int32)
         self._host = [(self.triangle_start, triangle_start), (self.triangle, triangle_order),
                       (self.edge_start, edge_start), (self.edge, edge_order),
+                      (self.triangle_sign, cut["triangle_sign"]),
                       (self.particle_home, cut["particle_home"]),
                       (self.edge_home, cut["edge_home"]), (self.near_start, near_start),
                       (self.near, near)]
@@ -190,9 +222,10 @@ class MeshPatches:
 
     @ti.func
     def _unit_normal(self, x, corners, t):
+        """Triangle t's unit normal at x, turned by its ``orient`` sign."""
         a, b, c = x[corners[t][0]], x[corners[t][1]], x[corners[t][2]]
         normal = (b - a).cross(c - a)
-        return normal / ti.max(normal.norm(), self.model.real(1e-30))
+        return self.triangle_sign[t] * normal / ti.max(normal.norm(), self.model.real(1e-30))
 
     @ti.func
     def neighbourhood_cone(self, p):

@@ -12,9 +12,9 @@ entries per box and the boxes per cell small whatever the spread of box sizes (a
 largest box's cell, queried over the 27 cells around an item, walked hundreds of items per query
 where the mesh is fine).
 
-Queries, by the caller, in a bucket's entries whose cell is the one asked for: the boxes that hold
-a point (the point's own cell), and the boxes that overlap a box (its cells; a pair of boxes is
-counted in the first cell both span, ``first_common_cell``, so once).
+Queries, by the caller, in a bucket's entries whose cell is the one asked for: the boxes that
+overlap a box (its cells; a pair of boxes is counted in the first cell both span,
+``first_common_cell``, so once).
 """
 
 import taichi as ti

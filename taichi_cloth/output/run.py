@@ -190,9 +190,9 @@ def run_in_folder(scene: Scene, frame_count: int, folder: OwnedFolder, quiet: bo
         print(summary(stats, directory))
     dropped = stats["per_frame"][-1].get("self_collision_overflow", 0) if stats["per_frame"] else 0
     if dropped:
-        print(f"warning: {stats['scene']}: effects.self_collision: {dropped} candidate pairs did "
-              f"not fit its list, so contacts may have been missed (self_collision_overflow in "
-              f"stats.json)", file=sys.stderr)
+        print(f"warning: {stats['scene']}: effects.self_collision: {dropped} candidate pairs or "
+              f"partner patches did not fit its lists, so contacts may have been missed "
+              f"(self_collision_overflow in stats.json)", file=sys.stderr)
     return 0
 
 
