@@ -563,7 +563,8 @@ def flat_patch_pairs(x: np.ndarray, triangles: np.ndarray, triangle_patch: np.nd
     one, patches sharing a particle with a common patch when their neighbourhoods' cones do.
     The triangles must be wound alike."""
     count = triangle_patch.max() + 1
-    normal = np.cross(x[triangles[:, 1]] - x[triangles[:, 0]], x[triangles[:, 2]] - x[triangles[:, 0]])
+    a, b, c = (x[triangles[:, k]] for k in range(3))
+    normal = np.cross(b - a, c - a)
     normal /= np.linalg.norm(normal, axis=1, keepdims=True)
 
     def angle(u, v):
@@ -663,7 +664,8 @@ def test_the_candidate_list_holds_exactly_the_layered_pairs_within_the_reach(col
         np.sum(np.abs(edge_distance - reach) < 1e-9)
     hops = mesh_hops(edges, len(x))
     expected, left_out = set(), []
-    for p, t, corner_ids in zip(*(a[vertex_distance <= reach] for a in (vertex, triangle, corners))):
+    near = vertex_distance <= reach
+    for p, t, corner_ids in zip(vertex[near], triangle[near], corners[near]):
         if culled(home[p], triangle_patch[t]):
             left_out.append(hops[p, corner_ids].min())
         else:
@@ -695,7 +697,8 @@ def bent_positions(model, radius: float) -> np.ndarray:
     by the sheet's width over the radius), then jittered by 0.5 mm."""
     x = model.garment.positions.copy()
     across = x[:, 0] - x[:, 0].mean()
-    x[:, 0], x[:, 1] = radius * np.sin(across / radius), x[:, 1] + radius * (1 - np.cos(across / radius))
+    x[:, 0] = radius * np.sin(across / radius)
+    x[:, 1] += radius * (1 - np.cos(across / radius))
     return x + np.random.default_rng(3).uniform(-0.0005, 0.0005, x.shape)
 
 
