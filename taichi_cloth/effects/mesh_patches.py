@@ -138,7 +138,8 @@ def members(home: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:
 @ti.func
 def room_less_angle(room, cosine):
     """(cos, sin) of room − θ for a room (cos, sin) in [0, α] and an angle θ ∈ [0, π] of cosine
-    ``cosine``: negative (sin < 0) when θ is wider than the room."""
+    ``cosine``: negative (sin < 0) when θ is wider than the room. (With the room α itself: the
+    room α − θ left by a cone of half-angle θ.)"""
     sine = ti.sqrt(ti.max(1.0 - cosine * cosine, 0.0))
     return ti.Vector([room[0] * cosine + room[1] * sine, room[1] * cosine - room[0] * sine])
 
@@ -208,14 +209,10 @@ class MeshPatches:
         cosine = real(1.0)  # cos h
         for k in range(self.triangle_start[p], self.triangle_start[p + 1]):
             cosine = ti.min(cosine, axis.dot(self._unit_normal(x, corners, self.triangle[k])))
-        flat = ti.static(FLAT_HALF_ANGLE)
         room = ti.Vector([real(NOT_FLAT), 0.0])
-        if cosine >= ti.static(math.cos(FLAT_HALF_ANGLE)):
-            sine = ti.sqrt(ti.max(1.0 - cosine * cosine, 0.0))
-            room = ti.Vector([ti.static(math.cos(flat)) * cosine
-                              + ti.static(math.sin(flat)) * sine,
-                              ti.static(math.sin(flat)) * cosine
-                              - ti.static(math.cos(flat)) * sine])
+        if cosine >= ti.static(math.cos(FLAT_HALF_ANGLE)):  # α less h
+            room = room_less_angle(ti.Vector([ti.static(math.cos(FLAT_HALF_ANGLE)),
+                                              ti.static(math.sin(FLAT_HALF_ANGLE))]), cosine)
         self.axis[p], self.room[p] = axis, room
         grow = real(0.5 * self.reach)
         self.boxes.lower[p], self.boxes.upper[p] = low - grow, high + grow
