@@ -282,23 +282,22 @@ class CandidatePairs(PairRecords):
         owner = self.model.particle_count + e
         self._start_row(owner)
         ends = self.ends[e]
-        home = patches.edge_home[e]
-        if home >= 0:
-            for n in range(patches.partner_count[home]):
-                partner = patches.partner[home, n]
-                first, end = patches.edge_start[partner], patches.edge_start[partner + 1]
-                for back in range(end - first):  # a patch's edges ascend: higher ones first
-                    other = patches.edge[end - 1 - back]
-                    if other <= e:
-                        break
-                    other_ends = self.ends[other]
-                    # one test of all, evaluated whole (a kernel's ``and`` evaluates both sides)
-                    if (self.edge_lower[e] <= self.edge_upper[other]).all() \
-                            and (self.edge_lower[other] <= self.edge_upper[e]).all() \
-                            and other_ends[0] != ends[0] and other_ends[0] != ends[1] \
-                            and other_ends[1] != ends[0] and other_ends[1] != ends[1]:
-                        self._consider(x, owner, other, ti.Vector(
-                            [ends[0], ends[1], other_ends[0], other_ends[1]]), EDGE_EDGE)
+        home = patches.edge_home[e]  # every edge is a triangle's
+        for n in range(patches.partner_count[home]):
+            partner = patches.partner[home, n]
+            first, end = patches.edge_start[partner], patches.edge_start[partner + 1]
+            for back in range(end - first):  # a patch's edges ascend: higher ones first
+                other = patches.edge[end - 1 - back]
+                if other <= e:
+                    break
+                other_ends = self.ends[other]
+                # one test of all, evaluated whole (a kernel's ``and`` evaluates both sides)
+                if (self.edge_lower[e] <= self.edge_upper[other]).all() \
+                        and (self.edge_lower[other] <= self.edge_upper[e]).all() \
+                        and other_ends[0] != ends[0] and other_ends[0] != ends[1] \
+                        and other_ends[1] != ends[0] and other_ends[1] != ends[1]:
+                    self._consider(x, owner, other, ti.Vector(
+                        [ends[0], ends[1], other_ends[0], other_ends[1]]), EDGE_EDGE)
         self._keep_crossed(owner)
 
     @ti.func

@@ -26,9 +26,9 @@ this flat, a few patches across, cannot overlap itself that way, and the outline
 Cut once, on the host (``cut_patches``): breadth-first over triangles sharing an edge, from the
 lowest unassigned one, up to ``PATCH_TRIANGLES`` each; each triangle's normal is turned to agree
 with its neighbours' (``orient``), so the cones do not depend on the winding of the garment's
-file. Each particle and edge belongs to the patch
-of the first triangle it is part of (its home): a pair is walked from its particle's or first
-edge's home patch, through that patch's partners.
+file. Each particle and edge belongs to the patch of the first triangle it is part of (its
+home): a pair is walked from its particle's or first edge's home patch, through that patch's
+partners.
 """
 
 import collections
@@ -127,11 +127,11 @@ def orient(triangles: np.ndarray, beside: list) -> np.ndarray:
 
 
 def members(home: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:
-    """CSR of each patch's members, ascending: (start (count + 1), the indices of ``home``)."""
-    valid = np.flatnonzero(home >= 0)
-    order = valid[np.argsort(home[valid], kind="stable")]
+    """CSR of each patch's members, ascending: (start (count + 1), the indices of ``home``, the
+    patch of each triangle or edge)."""
+    order = np.argsort(home, kind="stable")
     start = np.zeros(count + 1, np.int64)
-    np.cumsum(np.bincount(home[valid], minlength=count), out=start[1:])
+    np.cumsum(np.bincount(home, minlength=count), out=start[1:])
     return start, order
 
 
@@ -147,7 +147,8 @@ def room_less_angle(room, cosine):
 @ti.data_oriented
 class MeshPatches:
     """A garment's patches (module docstring), with their boxes, cones and partners at the
-    positions of the last ``build``."""
+    positions of the last build of the candidate list (``cone``, ``neighbourhood_cone``,
+    ``file_boxes``, then ``list_partners``)."""
 
     def __init__(self, model, reach: float):
         garment = model.garment
