@@ -11,6 +11,7 @@ from systems import assemble, energy_gradient
 from taichi_cloth.cloth.garment import build_garment
 from taichi_cloth.cloth.topology import triangle_edges
 from taichi_cloth.config.scene import load_scene
+from taichi_cloth.effects.base import EffectContext
 from taichi_cloth.effects.collision import CapsuleContact, CollisionSettings
 from taichi_cloth.effects.penalty import capsule_penetration_depths
 from taichi_cloth.physics.metrics import surface_samples
@@ -36,6 +37,7 @@ class SheetOnThinBar:
             capsule_radius=[RADIUS] * 3)
         physics.control.capsule_track.hold(np.concatenate([FAR, BAR, FAR]))
         self.forces, self.contact = physics.forces, physics.effects[0]
+        self.control = physics.control
         self.springs_only = assemble(self.model).forces
         n = self.model.particle_count
         self.state = self.model.state()
@@ -119,6 +121,30 @@ def test_the_implicit_blocks_are_the_diagonal_blocks_of_the_jacobian(sheet):
             checked += 1
         np.testing.assert_allclose(block, numeric, atol=1e-5 * max(np.abs(numeric).max(), 1.0))
     assert checked >= 4
+
+
+def test_each_particle_is_its_own_first_sample_and_blocks_are_kept_only_when_asked(sheet):
+    """The particles are the first samples (their own corner, weight 1, their own mass), each
+    first in its particle's list, then its edges (w = ½) and triangles (w = ⅓); an effect built
+    for an explicit integrator (``needs_jacobian`` false) has no block fields at all."""
+    contact, n = sheet.contact, sheet.model.particle_count
+    start = contact.particle_sample_start.to_numpy()
+    sample = contact.particle_sample.to_numpy()
+    weight = contact.particle_sample_weight.to_numpy()
+    np.testing.assert_array_equal(sample[start[:-1]], np.arange(n))
+    np.testing.assert_array_equal(weight[start[:-1]], 1.0)
+    np.testing.assert_array_equal(contact.sample_mass.to_numpy()[:n], sheet.garment.mass)
+    edges, triangles = len(sheet.edges), len(sheet.garment.triangles)
+    assert contact.sample_count == n + edges + triangles
+    assert sorted(np.unique(np.round(weight, 12))) == pytest.approx([1 / 3, 0.5, 1.0])
+    assert np.count_nonzero(np.isclose(weight, 0.5)) == 2 * edges
+    assert np.count_nonzero(np.isclose(weight, 1 / 3)) == 3 * triangles
+    assert contact.keeps_blocks and hasattr(contact, "sample_stiffness")
+    explicit = CapsuleContact(CollisionSettings(stiffness=STIFFNESS, thickness=MARGIN),
+                              EffectContext(sheet.model, sheet.control, needs_jacobian=False))
+    assert not explicit.keeps_blocks
+    assert not any(hasattr(explicit, name) for name in
+                   ("sample_stiffness", "sample_curvature", "sample_damping"))
 
 
 def test_auto_step_sees_the_samples_stiffness(sheet):

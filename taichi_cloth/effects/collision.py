@@ -6,15 +6,19 @@ particle spacing (a leg between the particles of a coarse skirt, a bar under a d
 between particles that alone feel contact. Every edge midpoint and triangle centroid is then a
 contact sample too, a point p = Σ_a w_a·x_a of its 2 or 3 particles (w = ½ or ⅓), with velocity
 Σ w_a·v_a and mass m_s = Σ w_a·m_a. Its penalty energy E_s(p) gives each of its particles the
-force w_a·F_s (∂p/∂x_a = w_a·I), so momentum and the energy balance hold. A pass per force
-evaluation (``prepare``) computes F_s into a field for every sample that may touch a capsule
-(stamped with the evaluation's number; the others' F_s = 0 is not stored); each particle then
-gathers its own share over its samples stamped now (``gather.incidence_lists``, a fixed
-order). For the implicit solver each particle's block keeps w_a²·∂F_s/∂p of its samples and
-drops the couplings between the particles of a sample (a documented approximation: the Newton
-step stays a descent step, the contact stiffness on the diagonal is exact). With samples, a
-particle feels the contact stiffness of its own and of its samples: Gershgorin bounds the mode
-by k̂·(1 + Σ w_a·m_s/m_a), which ``stability_modes`` reports for ``dt = "auto"``."""
+force w_a·F_s (∂p/∂x_a = w_a·I), so momentum and the energy balance hold. Each particle is a
+sample of its own (w = 1), listed first, so one pass serves them all: per force evaluation
+(``prepare``) it computes, for every sample that touches a capsule, F_s and its blocks ∂F_s/∂p
+and ∂F_s/∂u into fields (stamped with the evaluation's number; a sample that touches nothing
+stores nothing); each particle then gathers its share over its samples stamped now
+(``gather.incidence_lists``, a fixed order). The contact is written once in the kernels that
+take it (one inlined copy of the probes instead of four: the implicit step compiled ~1.3 s
+faster, docs/performance.md). For the implicit solver each particle's block keeps
+w_a²·∂F_s/∂p of its samples and drops the couplings between the particles of a sample (a
+documented approximation: the Newton step stays a descent step, the contact stiffness on the
+diagonal is exact). With samples, a particle feels the contact stiffness of its own and of its
+samples: Gershgorin bounds the mode by k̂·Σ w_a·m_s/m_a (its own sample: 1), which
+``stability_modes`` reports for ``dt = "auto"``."""
 
 from dataclasses import dataclass
 
@@ -24,7 +28,7 @@ import taichi as ti
 from taichi_cloth.effects.base import Effect, EffectContext
 from taichi_cloth.effects.near_masks import NearMasks
 from taichi_cloth.effects.penalty import (PenaltySettings, capsule_penetration_depths,
-                                          closest_on_segment, penalty_blocks, penalty_force)
+                                          closest_on_segment, penalty_terms)
 from taichi_cloth.gather import incidence_lists
 from taichi_cloth.settings import setting
 
@@ -46,8 +50,8 @@ class CapsuleContact(NearMasks, Effect):
     ``control.capsule_radius[c]`` [m]; ``margin`` [m] is the cloth's thickness kept off the surface.
     ``prepare`` poses the capsules once per force evaluation; a particle then first tests each
     capsule's bounding sphere (centre (a + b)/2, radius |b − a|/2 + r + margin), and only
-    particles inside it pay for the exact closest-point test. With surface samples, the
-    near-masks of ``NearMasks`` say which capsules a particle or a sample may touch.
+    points inside it pay for the exact closest-point test. The near-masks of ``NearMasks`` say
+    which capsules a sample (a particle, an edge midpoint, a centroid) may touch.
     """
 
     name = "collision"
@@ -77,40 +81,50 @@ class CapsuleContact(NearMasks, Effect):
         self.capsule_reach_sq = ti.field(model.real, self.capsule_count)
         self._host_radius = np.asarray(capsule_radius, dtype=track.numpy_real)
         self.surface = config.surface and len(model.garment.triangles) > 0
-        self.stiffness_factor = 1.0
-        self.masked = False  # near-masks (with surface samples and at most MASK_BITS capsules)
-        if self.surface:
-            self._allocate_samples(model)
+        # the samples' blocks for the implicit solver's ``local_jacobian`` (not compiled for
+        # an explicit integrator, which never asks for them)
+        self.keeps_blocks = context.needs_jacobian
+        self._allocate_samples(model)
 
     def _allocate_samples(self, model) -> None:
-        """The surface samples (edge midpoints, then triangle centroids) as 3 particles and 3
-        weights each (an edge repeats its first particle with weight 0), their force field, and
-        each particle's CSR list of (sample, its weight there)."""
-        triangles = model.garment.triangles
-        edges = model.garment.edges
-        corners = np.concatenate([np.column_stack([edges, edges[:, 0]]), triangles]).astype(np.int32)
-        weights = np.concatenate([np.tile([0.5, 0.5, 0.0], (len(edges), 1)),
+        """The contact samples (the particles, then with ``surface`` the edge midpoints and the
+        triangle centroids) as 3 particles and 3 weights each (a particle is its own first
+        corner with weight 1, an edge repeats its first particle with weight 0), their force
+        and block fields, and each particle's CSR list of (sample, its weight there), its own
+        sample first."""
+        n = model.particle_count
+        edges = model.garment.edges if self.surface else np.zeros((0, 2), np.int32)
+        triangles = model.garment.triangles if self.surface else np.zeros((0, 3), np.int32)
+        own = np.arange(n)
+        corners = np.concatenate([np.column_stack([own, own, own]),
+                                  np.column_stack([edges, edges[:, 0]]),
+                                  triangles]).astype(np.int32)
+        weights = np.concatenate([np.tile([1.0, 0.0, 0.0], (n, 1)),
+                                  np.tile([0.5, 0.5, 0.0], (len(edges), 1)),
                                   np.full((len(triangles), 3), 1.0 / 3.0)])
-        # an edge's third corner listed as a particle past the last, so that it sorts out
-        listed = np.concatenate([np.column_stack([edges, np.full(len(edges), model.particle_count)]),
-                                 triangles])
-        start, item, slot = incidence_lists(listed, model.particle_count + 1)
-        start = start[:model.particle_count + 1]
+        # corners of weight 0 listed as a particle past the last, so that they sort out
+        listed = np.where(weights > 0, corners, n)
+        start, item, slot = incidence_lists(listed, n + 1)
+        start = start[:n + 1]
         item, slot = item[:start[-1]], slot[:start[-1]]
         mass = model.garment.mass
         sample_mass = np.einsum("sa,sa->s", weights, mass[corners])
-        share = np.zeros(model.particle_count)
+        share = np.zeros(n)  # Σ w_a·m_s over a particle's samples, its own (m_a) included
         np.add.at(share, corners.ravel(), (weights * sample_mass[:, None]).ravel())
         free = mass > 0
-        self.stiffness_factor = float(np.max(1.0 + share[free] / mass[free])) if free.any() else 1.0
+        self.stiffness_factor = float(np.max(share[free] / mass[free])) if free.any() else 1.0
         self.sample_count = len(corners)
-        rest = np.linalg.norm(np.diff(model.garment.positions[edges], axis=1), axis=2)
+        rest = np.linalg.norm(np.diff(model.garment.positions[model.garment.edges], axis=1),
+                              axis=2)
         self.allocate_masks(float(rest.max(initial=0.0)))
         real = model.real
         self.sample_corners = ti.Vector.field(3, ti.i32, self.sample_count)
         self.sample_weights = ti.Vector.field(3, real, self.sample_count)
         self.sample_mass = ti.field(real, self.sample_count)
         self.sample_force = ti.Vector.field(3, real, self.sample_count)
+        if self.keeps_blocks:  # ∂F_s/∂p without and with its curvature term, and ∂F_s/∂u
+            (self.sample_stiffness, self.sample_curvature, self.sample_damping) = [
+                ti.Matrix.field(3, 3, real, self.sample_count) for _ in range(3)]
         # the evaluation (``NearMasks.evaluation``) that last stored the sample's force
         self.sample_evaluation = ti.field(ti.i32, self.sample_count)
         self.particle_sample_start = ti.field(ti.i32, model.particle_count + 1)
@@ -119,37 +133,32 @@ class CapsuleContact(NearMasks, Effect):
         self._sample_tables = (corners, weights, sample_mass, start, item, weights[item, slot])
 
     def upload(self) -> None:
-        """The capsule radii (and the surface samples), into the model's ``uploads``."""
-        pairs = [(self.capsule_radius, self._host_radius)]
-        if self.surface:
-            real = self.model.numpy_real
-            corners, weights, sample_mass, start, item, item_weight = self._sample_tables
-            pairs += [*self.mask_uploads(),
-                      (self.sample_corners, corners),
-                      (self.sample_weights, weights.astype(real)),
-                      (self.sample_mass, sample_mass.astype(real)),
-                      (self.particle_sample_start, start), (self.particle_sample, item),
-                      (self.particle_sample_weight, item_weight.astype(real))]
-        self.model.uploads.add(pairs)
+        """The capsule radii and the samples, into the model's ``uploads``."""
+        real = self.model.numpy_real
+        corners, weights, sample_mass, start, item, item_weight = self._sample_tables
+        self.model.uploads.add([(self.capsule_radius, self._host_radius), *self.mask_uploads(),
+                                (self.sample_corners, corners),
+                                (self.sample_weights, weights.astype(real)),
+                                (self.sample_mass, sample_mass.astype(real)),
+                                (self.particle_sample_start, start),
+                                (self.particle_sample, item),
+                                (self.particle_sample_weight, item_weight.astype(real))])
 
     @ti.func
     def prepare(self, x, v, t):
         """Pose every capsule at time t [s] once, before the particle loops: endpoints a, b and
         their velocities from the track (two Hermite evaluations per capsule instead of four per
-        particle and capsule), and the bounding sphere of ``near``; then with ``surface`` every
-        sample's contact force at (x, v)."""
+        particle and capsule), and the bounding sphere of ``near``; then every sample's contact
+        at (x, v): F_s and (``keeps_blocks``) its blocks, stored and stamped where it touches a
+        capsule (elsewhere F_s = 0, not stored: its readers find an older stamp)."""
         self._pose(t)
-        if ti.static(self.surface):
-            if ti.static(self.masked):
-                self._refresh_masks(x)
-            self.evaluation[None] += 1  # (``NearMasks``)
-            for i_s in range(self.sample_count):
-                position, mask = self._sample_mask(x, i_s)
-                if mask != 0:  # else F_s = 0, not stored: its readers find an older stamp
-                    self.sample_force[i_s] = self._contact_force(
-                        self.sample_mass[i_s], position, self._sample_point(v, i_s), mask)
-                    self.sample_evaluation[i_s] = self.evaluation[None]
-                    self._mark_touched(i_s)
+        if ti.static(self.masked):
+            self._refresh_masks(x)
+        self.evaluation[None] += 1  # (``NearMasks``)
+        for i_s in range(self.sample_count):
+            position, mask = self._sample_mask(x, i_s)
+            if mask != 0:
+                self._sample_contact(i_s, position, self._sample_point(v, i_s), mask)
 
     @ti.func
     def _sample_point(self, values, i_s):
@@ -201,91 +210,96 @@ class CapsuleContact(NearMasks, Effect):
         return (position - self.capsule_center[i_c]).norm_sqr() < self.capsule_reach_sq[i_c]
 
     @ti.func
-    def _contact_force(self, mass, position, velocity, mask):
-        """The penalty force [N] on a point of ``mass`` at ``position`` with ``velocity``,
-        summed over the capsules whose bit is set in ``mask`` (each first culled by its
-        bounding sphere)."""
+    def _sample_contact(self, i_s, position, velocity, mask):
+        """Sample i_s at ``position`` with ``velocity``, summed over the capsules whose bit is
+        set in ``mask`` (each first culled by its bounding sphere): where it touches one, its
+        penalty force F_s [N] and (``keeps_blocks``) ∂F_s/∂p and ∂F_s/∂u stored, stamped with
+        this evaluation, and its particles marked. ∂F/∂p = m·k̂·[−n·nᵀ + (d/|p − y|)·P],
+        P = I − n·nᵀ (− â·âᵀ on the cylinder part), friction left out, is kept as its two
+        terms (``sample_stiffness``, ``sample_curvature``: the positive curvature term, which
+        ``local_jacobian``'s ``definite`` drops); ∂F/∂u from ``penalty_damping_block``. A
+        contact whose normal force is clamped to 0 (the point leaving fast) exerts nothing and
+        adds no block: its blocks would make release sticky."""
         real = self.model.real
+        mass = self.sample_mass[i_s]
+        touches = False
         f = ti.Vector.zero(real, 3)
-        i_c = self._next_capsule(0, mask)
-        while i_c < self.capsule_count:
-            if self.near(i_c, position):
-                depth, normal, distance, _segment, _axis, surface_velocity = self.probe(
-                    i_c, position)
-                if depth > 0 and distance > 0:
-                    f += penalty_force(mass, depth, normal, velocity - surface_velocity,
-                                       real(self.stiffness), real(self.damping_ratio),
-                                       real(self.friction))
-            i_c = self._next_capsule(i_c + 1, mask)
-        return f
-
-    @ti.func
-    def force(self, model, x, v, i_p, t):
-        """The particle's own contact and, with ``surface``, w_a·F_s of each of its samples
-        (none where no sample of it may touch a capsule at this evaluation: each F_s is 0)."""
-        f = self._contact_force(model.particle_mass[i_p], x[i_p], v[i_p],
-                                self._particle_mask(x, i_p))
-        if ti.static(self.surface):
-            if self._sample_may_touch(i_p):
-                for k in range(self.particle_sample_start[i_p],
-                               self.particle_sample_start[i_p + 1]):
-                    i_s = self.particle_sample[k]
-                    if self.sample_evaluation[i_s] == self.evaluation[None]:  # F_s stored now
-                        f += self.particle_sample_weight[k] * self.sample_force[i_s]
-        return f
-
-    @ti.func
-    def local_jacobian(self, model, x, v, i_p, t, definite: ti.template()):
-        """(∂f/∂x, ∂f/∂v) of the penalty on particle i_p (``_contact_blocks``) plus, with
-        ``surface``, w_a² times its samples' blocks (the couplings between a sample's particles
-        left out: module docstring)."""
-        stiffness_block, damping_block = self._contact_blocks(
-            model.particle_mass[i_p], x[i_p], v[i_p], self._particle_mask(x, i_p), definite)
-        if ti.static(self.surface):
-            first, end = self.particle_sample_start[i_p], self.particle_sample_start[i_p + 1]
-            if not self._sample_may_touch(i_p):
-                end = first  # no sample of it may touch: none is walked
-            for k in range(first, end):
-                i_s = self.particle_sample[k]
-                position, mask = self._sample_mask(x, i_s)
-                if mask != 0:  # a sample that cannot touch a capsule has no blocks
-                    weight = self.particle_sample_weight[k]
-                    sample_stiffness, sample_damping = self._contact_blocks(
-                        self.sample_mass[i_s], position, self._sample_point(v, i_s), mask,
-                        definite)
-                    stiffness_block += weight * weight * sample_stiffness
-                    damping_block += weight * weight * sample_damping
-        return stiffness_block, damping_block
-
-    @ti.func
-    def _contact_blocks(self, mass, position, velocity, mask, definite: ti.template()):
-        """(∂F/∂p, ∂F/∂u) of ``_contact_force`` on a point of ``mass``:
-        ∂F/∂p = m·k̂·[−n·nᵀ + (d/|p − y|)·P], P = I − n·nᵀ (− â·âᵀ on the cylinder part), friction
-        left out; ∂F/∂u from ``penalty_damping_block``. The curvature term d/|p − y|·P is
-        positive; ``definite`` drops it. A contact whose normal force is clamped to 0 (the
-        point leaving fast) exerts nothing and adds nothing: its blocks would make release
-        sticky."""
-        real = self.model.real
         stiffness_block = ti.Matrix.zero(real, 3, 3)
+        curvature_block = ti.Matrix.zero(real, 3, 3)
         damping_block = ti.Matrix.zero(real, 3, 3)
         i_c = self._next_capsule(0, mask)
         while i_c < self.capsule_count:
             if self.near(i_c, position):
                 depth, normal, distance, s, axis, surface_velocity = self.probe(i_c, position)
-                if distance > 0:
-                    curvature = ti.Matrix.zero(real, 3, 3)  # ∇²|p − y| = P/|p − y|
-                    if ti.static(not definite):
-                        curvature = ti.Matrix.identity(real, 3) - normal.outer_product(normal)
-                        if 0 < s < 1:
-                            curvature -= axis.outer_product(axis)
-                        curvature /= distance
-                    capsule_stiffness, capsule_damping = penalty_blocks(
-                        mass, depth, normal, velocity - surface_velocity, curvature,
-                        real(self.stiffness), real(self.damping_ratio), real(self.friction),
-                        real, definite)
-                    stiffness_block += capsule_stiffness
-                    damping_block += capsule_damping
+                if depth > 0 and distance > 0:
+                    touches = True
+                    force, normal_magnitude, capsule_damping = penalty_terms(
+                        mass, depth, normal, velocity - surface_velocity, real(self.stiffness),
+                        real(self.damping_ratio), real(self.friction), real)
+                    f += force
+                    if ti.static(self.keeps_blocks):
+                        if normal_magnitude > 0:  # (as ``penalty_blocks``)
+                            curvature = ti.Matrix.identity(real, 3) \
+                                - normal.outer_product(normal)
+                            if 0 < s < 1:
+                                curvature -= axis.outer_product(axis)
+                            curvature /= distance  # ∇²|p − y| = P/|p − y|
+                            stiffness_block += -mass * real(self.stiffness) \
+                                * normal.outer_product(normal)
+                            curvature_block += mass * real(self.stiffness) * depth * curvature
+                            damping_block += capsule_damping
             i_c = self._next_capsule(i_c + 1, mask)
+        if touches:
+            self.sample_force[i_s] = f
+            if ti.static(self.keeps_blocks):
+                self.sample_stiffness[i_s] = stiffness_block
+                self.sample_curvature[i_s] = curvature_block
+                self.sample_damping[i_s] = damping_block
+            self.sample_evaluation[i_s] = self.evaluation[None]
+            self._mark_touched(i_s)
+
+    @ti.func
+    def _samples_now(self, i_p):
+        """The range of particle i_p's sample list to walk: all of it where a sample of it
+        touched a capsule at the evaluation that ``prepare`` made last (on a dancing skirt a
+        few dozen of its particles), none elsewhere."""
+        first, end = self.particle_sample_start[i_p], self.particle_sample_start[i_p + 1]
+        if not self._sample_may_touch(i_p):
+            end = first
+        return first, end
+
+    @ti.func
+    def force(self, model, x, v, i_p, t):
+        """Σ w_a·F_s over the particle's samples (its own first) stored at this evaluation."""
+        f = ti.Vector.zero(model.real, 3)
+        first, end = self._samples_now(i_p)
+        for k in range(first, end):
+            i_s = self.particle_sample[k]
+            if self.sample_evaluation[i_s] == self.evaluation[None]:  # F_s stored now
+                f += self.particle_sample_weight[k] * self.sample_force[i_s]
+        return f
+
+    @ti.func
+    def local_jacobian(self, model, x, v, i_p, t, definite: ti.template()):
+        """(∂f/∂x, ∂f/∂v) of the penalty on particle i_p: w_a² times the blocks of its samples
+        (its own first) stored at this evaluation (the couplings between a sample's particles
+        left out: module docstring), at the (x, v) of the last ``prepare``; ``definite`` drops
+        the curvature term."""
+        ti.static_assert(self.keeps_blocks, "the contact's blocks were not asked for "
+                                            "(EffectContext.needs_jacobian)")
+        real = model.real
+        stiffness_block = ti.Matrix.zero(real, 3, 3)
+        damping_block = ti.Matrix.zero(real, 3, 3)
+        first, end = self._samples_now(i_p)
+        for k in range(first, end):
+            i_s = self.particle_sample[k]
+            if self.sample_evaluation[i_s] == self.evaluation[None]:  # blocks stored now
+                weight_sq = self.particle_sample_weight[k] * self.particle_sample_weight[k]
+                sample_stiffness = self.sample_stiffness[i_s]
+                if ti.static(not definite):
+                    sample_stiffness += self.sample_curvature[i_s]
+                stiffness_block += weight_sq * sample_stiffness
+                damping_block += weight_sq * self.sample_damping[i_s]
         return stiffness_block, damping_block
 
     @ti.func

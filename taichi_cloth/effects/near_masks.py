@@ -1,5 +1,6 @@
 """The broad phase of capsule contact (``effects/collision.py``, which mixes this class in): each
-particle and surface sample keeps a near-mask, the capsules within r + margin + a slack s of it
+contact sample (a particle, an edge midpoint, a centroid) keeps a near-mask, the capsules within
+r + margin + a slack s of it
 (its distance to the axis segment), and only those are tested for it. The masks are made again
 only when a particle or a capsule end has moved by more than s/2 since they were made (a sample,
 a mean of particles, moves no farther than they do): until then a distance to a segment has
@@ -17,10 +18,10 @@ the dancing ``hula`` 63–279 samples with a capsule near instead of ~2,800), im
 1/60 s, where the hips move ~8 mm a step, stay at ½ (docs/performance.md).
 
 A point near a capsule first tests its squared distance to the axes of its mask
-(``_may_touch``, through ``_particle_mask`` and ``_sample_mask``); each evaluation marks the
-particles of the samples that pass it (``touched_in``), and a particle with none reads none of
-its samples' forces (all 0): on the dancing ``hula`` a few dozen of 1,792 particles
-(docs/performance.md). The masks' remaking loops run no iteration while the masks are fresh.
+(``_may_touch``, through ``_sample_mask``); each evaluation marks the particles of the samples
+that touch a capsule (``touched_in``), and a particle with none reads none of its samples'
+forces (all 0): on the dancing ``hula`` a few dozen of 1,792 particles (docs/performance.md).
+The masks' remaking loops run no iteration while the masks are fresh.
 
 The host class provides ``model``, ``capsule_count``, the posed capsules (``capsule_a``,
 ``capsule_b``, ``capsule_center``, ``capsule_reach_sq``, ``capsule_radius``), ``margin``,
@@ -30,15 +31,15 @@ The host class provides ``model``, ``capsule_count``, the posed capsules (``caps
 import numpy as np
 import taichi as ti
 
-MASK_BITS = 31  # capsules a particle's near-mask can hold (more: every sample tests them all)
+MASK_BITS = 31  # capsules a sample's near-mask can hold (more: every sample tests them all)
 MASK_SLACK = (1 / 16, 1 / 2)  # of the longest rest edge: the least and most slack of the masks
 REMADE_AFTER = (16, 64)  # evaluations: masks lasting fewer double the slack, more halve it
 
 
 @ti.data_oriented
 class NearMasks:
-    """Near-masks of a cloth's particles and surface samples against posed capsules, and the
-    particles whose samples may touch one (module docstring)."""
+    """Near-masks of a cloth's contact samples against posed capsules, and the particles whose
+    samples touch one (module docstring)."""
 
     def allocate_masks(self, longest_rest_edge: float) -> None:
         """The masks (when there are at most ``MASK_BITS`` capsules: ``masked``), their slack
@@ -48,7 +49,6 @@ class NearMasks:
         self.slack_range = tuple(bound * longest_rest_edge for bound in MASK_SLACK)  # m
         self.mask_slack = ti.field(real, ())  # m: the masks' slack now
         self.evaluations_kept = ti.field(ti.i32, ())  # since the masks were last made
-        self.particle_near = ti.field(ti.i32, model.particle_count)
         self.sample_near = ti.field(ti.i32, self.sample_count)
         # where the particles and the capsules' ends were when the masks were made [m]; stale:
         # the masks are made again at this evaluation
@@ -72,7 +72,7 @@ class NearMasks:
 
     @ti.func
     def _refresh_masks(self, x):
-        """Every particle's and sample's near-mask made again at x [m] when a particle or a
+        """Every sample's near-mask made again at x [m] when a particle or a
         capsule end has moved by more than half the slack since the last time, the slack first
         fitted to how long the masks lasted (module docstring)."""
         half_slack_sq = 0.25 * self.mask_slack[None] ** 2
@@ -96,7 +96,6 @@ class NearMasks:
             self.mask_sphere_sq[i_c] = (ti.sqrt(self.capsule_reach_sq[i_c])
                                         + self.mask_slack[None]) ** 2
         for i_p in range(self.model.particle_count * self.mask_stale[None]):
-            self.particle_near[i_p] = self._near_mask(x[i_p])
             self.mask_x[i_p] = x[i_p]
         for i_s in range(self.sample_count * self.mask_stale[None]):
             self.sample_near[i_s] = self._near_mask(self._sample_point(x, i_s))
@@ -153,8 +152,8 @@ class NearMasks:
     @ti.func
     def _may_touch(self, position, mask):
         """Whether ``position`` [m] is within (1 + 10⁻⁴)·(r + margin) of the axis of a capsule
-        in ``mask`` (a squared distance, no root). Where not, ``_contact_force`` finds depth ≤ 0
-        at every capsule and gives 0: a sample skips it (and its velocity) to the same result.
+        in ``mask`` (a squared distance, no root). Where not, ``_sample_contact`` finds depth ≤ 0
+        at every capsule: a sample skips it (and its velocity) to the same result.
         On a dancing skirt ~1 in 200 samples near a capsule touches one (docs/performance.md)."""
         real = self.model.real
         touches = False
@@ -170,32 +169,13 @@ class NearMasks:
         return touches
 
     @ti.func
-    def _mask(self, i, sample: ti.template()):
-        """The near-mask of particle i (of sample i, with ``sample``); every capsule where
-        there are no masks (no surface samples, or more than ``MASK_BITS`` capsules)."""
-        mask = -1
-        if ti.static(self.masked):
-            if ti.static(sample):
-                mask = self.sample_near[i]
-            else:
-                mask = self.particle_near[i]
-        return mask
-
-    @ti.func
-    def _particle_mask(self, x, i_p):
-        """Particle i_p's near-mask, or 0 where it fails ``_may_touch`` at x [m] (its own
-        contact force and blocks are then 0 at every capsule)."""
-        mask = self._mask(i_p, False)
-        if ti.static(self.masked):
-            if not self._may_touch(x[i_p], mask):  # (false for a mask of 0)
-                mask = 0
-        return mask
-
-    @ti.func
     def _sample_mask(self, x, i_s):
         """(sample i_s's point at x [m], its near-mask, or 0 where the point fails
-        ``_may_touch``): the point is formed only for a sample with a capsule near (0 else)."""
-        mask = self._mask(i_s, True)
+        ``_may_touch``): the point is formed only for a sample with a capsule near (0 else).
+        Every capsule where there are no masks (more than ``MASK_BITS`` capsules)."""
+        mask = -1
+        if ti.static(self.masked):
+            mask = self.sample_near[i_s]
         position = ti.Vector.zero(self.model.real, 3)
         if mask != 0:
             position = self._sample_point(x, i_s)
@@ -205,13 +185,13 @@ class NearMasks:
 
     @ti.func
     def _sample_may_touch(self, i_p):
-        """Whether a surface sample of particle i_p may touch a capsule at the evaluation that
-        ``prepare`` made last (on a dancing skirt a few dozen of its particles)."""
+        """Whether a sample of particle i_p touched a capsule at the evaluation that ``prepare``
+        made last (on a dancing skirt a few dozen of its particles)."""
         return self.touched_in[i_p] == self.evaluation[None]
 
     @ti.func
     def _mark_touched(self, i_s):
-        """Sample i_s may touch a capsule at this evaluation: its particles are marked, so that
+        """Sample i_s touches a capsule at this evaluation: its particles are marked, so that
         they read their samples' forces (each write is the same value, whichever thread)."""
         for a in ti.static(range(3)):
             self.touched_in[self.sample_corners[i_s][a]] = self.evaluation[None]

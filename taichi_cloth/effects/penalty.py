@@ -103,18 +103,31 @@ def penalty_force(mass, depth, normal, relative_velocity, stiffness, damping_rat
 
 
 @ti.func
-def penalty_damping_block(mass, depth, normal, relative_velocity, stiffness, damping_ratio,
-                          friction, real: ti.template()):
-    """∂f/∂v of ``penalty_force`` with the friction coefficient frozen at the current slip:
-    −2ζ·m·√k̂·n·nᵀ − c_t·(I − n·nᵀ). Friction then acts implicitly like a damper (an explicit
-    friction of stiffness 2·m·√k̂ would overshoot at large steps); negative semi-definite."""
+def penalty_terms(mass, depth, normal, relative_velocity, stiffness, damping_ratio, friction,
+                  real: ti.template()):
+    """(``penalty_force`` [N], its normal magnitude f_n [N], ∂f/∂v [N·s/m]) in one evaluation,
+    sharing the normal speed, the slip and the friction coefficient. ∂f/∂v is taken with the
+    friction coefficient frozen at the current slip: −2ζ·m·√k̂·n·nᵀ − c_t·(I − n·nᵀ). Friction
+    then acts implicitly like a damper (an explicit friction of stiffness 2·m·√k̂ would
+    overshoot at large steps); negative semi-definite."""
     normal_speed = relative_velocity.dot(normal)
     normal_magnitude = normal_force_magnitude(mass, depth, normal_speed, stiffness, damping_ratio)
     slip = relative_velocity - normal_speed * normal
     viscosity = friction_viscosity(mass, normal_magnitude, slip.norm(), stiffness, friction)
     outer = normal.outer_product(normal)
     identity = ti.Matrix.identity(real, 3)
-    return -2 * damping_ratio * mass * ti.sqrt(stiffness) * outer - viscosity * (identity - outer)
+    damping_block = -2 * damping_ratio * mass * ti.sqrt(stiffness) * outer \
+        - viscosity * (identity - outer)
+    return normal_magnitude * normal - viscosity * slip, normal_magnitude, damping_block
+
+
+@ti.func
+def penalty_damping_block(mass, depth, normal, relative_velocity, stiffness, damping_ratio,
+                          friction, real: ti.template()):
+    """∂f/∂v of ``penalty_force`` (``penalty_terms``)."""
+    force, normal_magnitude, damping_block = penalty_terms(
+        mass, depth, normal, relative_velocity, stiffness, damping_ratio, friction, real)
+    return damping_block
 
 
 @ti.func
