@@ -172,11 +172,14 @@ class CapsuleContact(NearMasks, Effect):
     @ti.func
     def _pose(self, t):
         real = self.model.real
+        for i_k in range(2 * self.capsule_count):  # the track's points: a, b of each capsule
+            point, velocity = self.track.at(i_k, t)
+            if i_k % 2 == 0:
+                self.capsule_a[i_k // 2], self.capsule_velocity_a[i_k // 2] = point, velocity
+            else:
+                self.capsule_b[i_k // 2], self.capsule_velocity_b[i_k // 2] = point, velocity
         for i_c in range(self.capsule_count):
-            a, velocity_a = self.track.at(2 * i_c, t)
-            b, velocity_b = self.track.at(2 * i_c + 1, t)
-            self.capsule_a[i_c], self.capsule_b[i_c] = a, b
-            self.capsule_velocity_a[i_c], self.capsule_velocity_b[i_c] = velocity_a, velocity_b
+            a, b = self.capsule_a[i_c], self.capsule_b[i_c]
             self.capsule_center[i_c] = 0.5 * (a + b)
             reach = 0.5 * (b - a).norm() + self.capsule_radius[i_c] + real(self.margin)
             self.capsule_reach_sq[i_c] = reach * reach

@@ -25,7 +25,7 @@ The masks' remaking loops run no iteration while the masks are fresh.
 
 The host class provides ``model``, ``capsule_count``, the posed capsules (``capsule_a``,
 ``capsule_b``, ``capsule_center``, ``capsule_reach_sq``, ``capsule_radius``), ``margin``,
-``probe``, ``_axis_offset``, ``sample_count``, ``sample_corners`` and ``_sample_point``.
+``_axis_offset``, ``sample_count``, ``sample_corners`` and ``_sample_point``.
 """
 
 import numpy as np
@@ -127,8 +127,9 @@ class NearMasks:
         mask = 0
         for i_c in range(self.capsule_count):
             if (position - self.capsule_center[i_c]).norm_sqr() < self.mask_sphere_sq[i_c]:
-                depth = self.probe(i_c, position)[0]
-                if depth > -self.mask_slack[None]:
+                reach = self.capsule_radius[i_c] + self.model.real(self.margin) \
+                    + self.mask_slack[None]
+                if self._axis_offset(i_c, position)[1].norm() < reach:
                     mask |= 1 << i_c
         return mask
 
