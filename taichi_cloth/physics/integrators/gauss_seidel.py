@@ -118,22 +118,21 @@ class GaussSeidelSweeps:
 
     @ti.func
     def _gauss_seidel_iteration(self, rz, beta):
-        """One CG iteration on Â (module docstring): p = z + β·p; t = W⁻ᵀ·p (backward sweep);
-        q = W⁻¹·(p − D·t) (forward sweep, into ``product``), Â·p = t + q; δ += α·t, r̂ −= α·Â·p,
-        z = D·r̂. Returns (p·Â·p, the new r̂·z)."""
+        """One CG iteration on Â (module docstring): p = z + β·p and t = W⁻ᵀ·p in one backward
+        sweep (row i's t reads p_i and the t_j of rows j > i only, so each p_i is made as its
+        row is reached); q = W⁻¹·(p − D·t) (forward sweep, into ``product``), Â·p = t + q;
+        δ += α·t, r̂ −= α·Â·p, z = D·r̂. Returns (p·Â·p, the new r̂·z)."""
         model = self.model
         real = model.real
         n = model.particle_count
         b = ti.cast(beta, real)
-        for i_p in range(n):
-            if self._free(i_p):
-                self.direction[i_p] = self.preconditioned[i_p] + b * self.direction[i_p]
         for k in range(n):  # rows descending
             i_p = n - 1 - k
             t = ti.Vector.zero(real, 3)
             if self._free(i_p):
-                t = self.inverse_block[i_p] @ (self.direction[i_p]
-                                               - self._side_product(self.backward, i_p, False))
+                p = self.preconditioned[i_p] + b * self.direction[i_p]
+                self.direction[i_p] = p
+                t = self.inverse_block[i_p] @ (p - self._side_product(self.backward, i_p, False))
             self.backward[i_p] = t
         curvature = ti.f64(0.0)
         for i_p in range(n):  # rows ascending
