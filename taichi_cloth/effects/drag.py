@@ -2,8 +2,10 @@
 
 Each face's pressure is computed once per force evaluation (``prepare``: its normal, area and
 mean velocity), and each particle gathers a third of its faces' (in the fixed order of
-``model.particle_triangle``), instead of every particle recomputing its six faces. On a packed
-grid cloth the SIMD pass does the same in lanes (``lane_faces``, ``physics.packed_grid``)."""
+``model.particle_triangle``), instead of every particle recomputing its six faces; so are the
+faces' damping blocks for the implicit solver (``local_jacobian``), where it asks for them. On a
+packed grid cloth the SIMD pass does the same in lanes (``lane_faces``,
+``physics.packed_grid``)."""
 
 from dataclasses import dataclass
 
@@ -35,15 +37,24 @@ class Drag(Effect):
         self.face_factor = 0.5 * settings.air_density * settings.coefficient  # ½ρC_d [kg/m³]
         model = context.model
         self.model = model
+        faces = max(1, model.triangle_count)
         # each face's pressure (without ½ρC_d) [N] at the last ``prepare``
-        self.face_force = ti.Vector.field(3, model.real, max(1, model.triangle_count))
+        self.face_force = ti.Vector.field(3, model.real, faces)
+        # and its ``face_damping`` (n, w), for the implicit solver's blocks only
+        self.keeps_blocks = context.needs_jacobian
+        if self.keeps_blocks:
+            self.face_normal = ti.Vector.field(3, model.real, faces)
+            self.face_weight = ti.field(model.real, faces)
 
     @ti.func
     def prepare(self, x, v, t):
-        """Every face's pressure of still air, once."""
+        """Every face's pressure of still air, once (and its damping, ``keeps_blocks``)."""
         model = self.model
         for i_t in range(model.triangle_count):
-            self.face_force[i_t] = face_pressure(model, x, i_t, self._air(model, v, i_t))
+            air = self._air(model, v, i_t)
+            self.face_force[i_t] = face_pressure(model, x, i_t, air)
+            if ti.static(self.keeps_blocks):
+                self.face_normal[i_t], self.face_weight[i_t] = face_damping(model, x, i_t, air)
 
     @ti.func
     def face_air(self, face_velocity: ti.template()):
@@ -65,12 +76,14 @@ class Drag(Effect):
 
     @ti.func
     def local_jacobian(self, model, x, v, i_p, t, definite: ti.template()):
-        """(0, ∂f/∂v_i): the faces' ``face_damping`` for still air, negative semi-definite.
-        Explicit quadratic drag overshoots at large steps on light cloth
+        """(0, ∂f/∂v_i): the faces' ``face_damping`` for still air (after ``prepare``),
+        negative semi-definite. Explicit quadratic drag overshoots at large steps on light cloth
         (h·ρ_air·C_d·|u|/ρ_cloth > 2 in a gale)."""
+        ti.static_assert(self.keeps_blocks, "drag's blocks were not asked for "
+                                            "(EffectContext.needs_jacobian)")
         damping = ti.Matrix.zero(model.real, 3, 3)
         for k in range(model.particle_triangle_start[i_p], model.particle_triangle_start[i_p + 1]):
             i_t = model.particle_triangle[k]
-            normal, weight = face_damping(model, x, i_t, self._air(model, v, i_t))
-            damping -= weight * normal.outer_product(normal)
+            normal = self.face_normal[i_t]
+            damping -= self.face_weight[i_t] * normal.outer_product(normal)
         return ti.Matrix.zero(model.real, 3, 3), model.real(self.face_factor) * damping
