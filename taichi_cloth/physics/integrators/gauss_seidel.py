@@ -120,8 +120,9 @@ class GaussSeidelSweeps:
     def _gauss_seidel_iteration(self, rz, beta):
         """One CG iteration on Â (module docstring): p = z + β·p and t = W⁻ᵀ·p in one backward
         sweep (row i's t reads p_i and the t_j of rows j > i only, so each p_i is made as its
-        row is reached); q = W⁻¹·(p − D·t) (forward sweep, into ``product``), Â·p = t + q;
-        δ += α·t, r̂ −= α·Â·p, z = D·r̂. Returns (p·Â·p, the new r̂·z)."""
+        row is reached); q = W⁻¹·(p − D·t) (forward sweep, into ``product``; row i's
+        q_i = D_i⁻¹·(p_i − Σ_{j<i} A_ij·q_j) − t_i, one product with a block less than forming
+        D_i·t_i), Â·p = t + q; δ += α·t, r̂ −= α·Â·p, z = D·r̂. Returns (p·Â·p, the new r̂·z)."""
         model = self.model
         real = model.real
         n = model.particle_count
@@ -139,8 +140,8 @@ class GaussSeidelSweeps:
             q = ti.Vector.zero(real, 3)
             if self._free(i_p):
                 p, t = self.direction[i_p], self.backward[i_p]
-                q = self.inverse_block[i_p] @ (p - self.block[i_p] @ t
-                                               - self._side_product(self.product, i_p, True))
+                q = self.inverse_block[i_p] @ (p - self._side_product(self.product, i_p, True)) \
+                    - t
                 curvature += ti.cast(p.dot(t + q), ti.f64)
             self.product[i_p] = q
         a = ti.cast(rz / curvature, real)
