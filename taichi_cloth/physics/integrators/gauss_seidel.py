@@ -74,31 +74,30 @@ class GaussSeidelSweeps:
 
     @ti.func
     def _gauss_seidel_start(self):
-        """δ = s·δ₀, r̂ = W⁻¹·(rhs − s·A·δ₀) = c − s·g with c = W⁻¹·rhs and g = W⁻¹·A·δ₀ (one
-        forward sweep for both), z = D·r̂, p = 0: returns (c·D·c, the cold start's r·M⁻¹·r,
-        and r̂·z of the start taken)."""
+        """δ = s·δ₀, r̂ = W⁻¹·(rhs − s·A·δ₀) = c − s·g with c = W⁻¹·rhs and g = W⁻¹·A·δ₀, z = D·r̂,
+        p = 0: returns (c·D·c, the cold start's r·M⁻¹·r, and r̂·z of the start taken). Since
+        A = W + U (U the blocks above the diagonal), g = δ₀ + W⁻¹·U·δ₀: one forward sweep makes
+        c and W⁻¹·U·δ₀ (row i's U·δ₀ reads δ₀ only), with no product with the whole of A."""
         model = self.model
         real = model.real
-        ti.loop_config(serialize=True)
-        for i_p in range(model.particle_count):  # A·δ₀
-            if self._free(i_p):
-                self.product[i_p] = self._operator(self.delta_v, i_p)
         cold, along, length_sq = ti.f64(0.0), ti.f64(0.0), ti.f64(0.0)
         ti.loop_config(serialize=True)
-        for i_p in range(model.particle_count):  # c into residual, g into backward
+        for i_p in range(model.particle_count):  # c into residual, W⁻¹·U·δ₀ into backward
             c = ti.Vector.zero(real, 3)
-            g = ti.Vector.zero(real, 3)
+            swept = ti.Vector.zero(real, 3)
             if self._free(i_p):
                 c = self.inverse_block[i_p] @ (self.rhs[i_p]
                                                - self._side_product(self.residual, i_p, True))
-                g = self.inverse_block[i_p] @ (self.product[i_p]
-                                               - self._side_product(self.backward, i_p, True))
+                swept = self.inverse_block[i_p] @ (
+                    self._side_product(self.delta_v, i_p, False)
+                    - self._side_product(self.backward, i_p, True))
+                g = self.delta_v[i_p] + swept
                 block_c = self.block[i_p] @ c
                 cold += ti.cast(c.dot(block_c), ti.f64)
                 along += ti.cast(g.dot(block_c), ti.f64)
                 length_sq += ti.cast(g.dot(self.block[i_p] @ g), ti.f64)
             self.residual[i_p] = c
-            self.backward[i_p] = g
+            self.backward[i_p] = swept
         scale = ti.f64(0.0)
         if finite(along) and finite(length_sq) and length_sq > 0:
             scale = along / length_sq
@@ -107,7 +106,7 @@ class GaussSeidelSweeps:
         ti.loop_config(serialize=True)
         for i_p in range(model.particle_count):
             if self._free(i_p):
-                r = self.residual[i_p] - s * self.backward[i_p]
+                r = self.residual[i_p] - s * (self.delta_v[i_p] + self.backward[i_p])
                 z = self.block[i_p] @ r
                 self.delta_v[i_p] = s * self.delta_v[i_p]
                 self.residual[i_p] = r
