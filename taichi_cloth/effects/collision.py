@@ -12,8 +12,8 @@ sample of its own (w = 1), listed first, so one pass serves them all: per force 
 and ∂F_s/∂u into fields (stamped with the evaluation's number; a sample that touches nothing
 stores nothing); each particle then gathers its share over its samples stamped now
 (``gather.incidence_lists``, a fixed order). The contact is written once in the kernels that
-take it (one inlined copy of the probes instead of four: the implicit step compiled ~1.3 s
-faster, docs/performance.md). For the implicit solver each particle's block keeps
+take it (one inlined copy of the probes instead of four: docs/performance.md, "Contact written
+once in the implicit step"). For the implicit solver each particle's block keeps
 w_a²·∂F_s/∂p of its samples and drops the couplings between the particles of a sample (a
 documented approximation: the Newton step stays a descent step, the contact stiffness on the
 diagonal is exact). With samples, a particle feels the contact stiffness of its own and of its
@@ -220,7 +220,7 @@ class CapsuleContact(NearMasks, Effect):
         this evaluation, and its particles marked. ∂F/∂p = m·k̂·[−n·nᵀ + (d/|p − y|)·P],
         P = I − n·nᵀ (− â·âᵀ on the cylinder part), friction left out, is kept as its two
         terms (``sample_stiffness``, ``sample_curvature``: the positive curvature term, which
-        ``local_jacobian``'s ``definite`` drops); ∂F/∂u from ``penalty_damping_block``. A
+        ``local_jacobian``'s ``definite`` drops); ∂F/∂u from ``penalty_terms``. A
         contact whose normal force is clamped to 0 (the point leaving fast) exerts nothing and
         adds no block: its blocks would make release sticky."""
         real = self.model.real
