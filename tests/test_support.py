@@ -145,7 +145,7 @@ def test_jacobians_equal_central_differences_of_the_force(plate):
     """At rest: there the damping and friction forces vanish (their dependence on x, which
     the stiffness blocks leave out, with them) and friction is in its viscous regime (2·m·√k̂
     per unit slip), linear in v (away from rest its coefficient is frozen at the current slip:
-    ``penalty_damping_block``)."""
+    ``penalty_terms``)."""
     x, zero = plate.x, np.zeros_like(plate.x)
     for _ in range(3):
         u = plate.rng.standard_normal(x.shape)

@@ -122,31 +122,23 @@ def penalty_terms(mass, depth, normal, relative_velocity, stiffness, damping_rat
 
 
 @ti.func
-def penalty_damping_block(mass, depth, normal, relative_velocity, stiffness, damping_ratio,
-                          friction, real: ti.template()):
-    """∂f/∂v of ``penalty_force`` (``penalty_terms``)."""
-    force, normal_magnitude, damping_block = penalty_terms(
-        mass, depth, normal, relative_velocity, stiffness, damping_ratio, friction, real)
-    return damping_block
-
-
-@ti.func
 def penalty_blocks(mass, depth, normal, relative_velocity, curvature, stiffness, damping_ratio,
                    friction, real: ti.template(), definite: ti.template()):
     """(∂f/∂x, ∂f/∂v) of ``penalty_force`` against a surface whose distance function has the
     Hessian ``curvature`` at the point: m·k̂·(−n·nᵀ + d·curvature), the curvature term (positive
-    semi-definite for a convex surface) dropped when ``definite``, and ``penalty_damping_block``.
+    semi-definite for a convex surface) dropped when ``definite``, and ∂f/∂v of ``penalty_terms``.
     Zero while there is no force (d ≤ 0, or the normal force clamped to 0 as the point leaves
     fast: blocks there would make release sticky)."""
     stiffness_block = ti.Matrix.zero(real, 3, 3)
     damping_block = ti.Matrix.zero(real, 3, 3)
-    if depth > 0 and normal_force_magnitude(mass, depth, relative_velocity.dot(normal), stiffness,
-                                            damping_ratio) > 0:
-        stiffness_block = -mass * stiffness * normal.outer_product(normal)
-        if ti.static(not definite):
-            stiffness_block += mass * stiffness * depth * curvature
-        damping_block = penalty_damping_block(mass, depth, normal, relative_velocity, stiffness,
-                                              damping_ratio, friction, real)
+    if depth > 0:
+        force, normal_magnitude, damping = penalty_terms(mass, depth, normal, relative_velocity,
+                                                         stiffness, damping_ratio, friction, real)
+        if normal_magnitude > 0:
+            stiffness_block = -mass * stiffness * normal.outer_product(normal)
+            if ti.static(not definite):
+                stiffness_block += mass * stiffness * depth * curvature
+            damping_block = damping
     return stiffness_block, damping_block
 
 

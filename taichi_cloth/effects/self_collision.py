@@ -48,8 +48,7 @@ import taichi as ti
 from taichi_cloth.effects import crossing_history
 from taichi_cloth.effects.base import Effect, EffectContext
 from taichi_cloth.effects.candidate_pairs import CandidatePairs
-from taichi_cloth.effects.penalty import (normal_force_magnitude, penalty_damping_block,
-                                          penalty_force)
+from taichi_cloth.effects.penalty import normal_force_magnitude, penalty_terms
 from taichi_cloth.effects.piercing import intersections_around
 from taichi_cloth.effects.proximity import VERTEX_TRIANGLE, pair_geometry
 from taichi_cloth.errors import InputError
@@ -172,11 +171,13 @@ class SelfCollision(Effect):
         stiffness = ti.Matrix.zero(real, 3, 3)
         damping = ti.Matrix.zero(real, 3, 3)
         if active:
-            force = penalty_force(mass, depth, normal, relative_velocity, k_hat, zeta, mu)
+            pushed, normal_magnitude, damped = penalty_terms(mass, depth, normal,
+                                                             relative_velocity, k_hat, zeta, mu,
+                                                             real)
+            force = pushed
             if ti.static(self.blocks):
                 stiffness = -mass * k_hat * normal.outer_product(normal)
-                damping = penalty_damping_block(mass, depth, normal, relative_velocity, k_hat,
-                                                zeta, mu, real)
+                damping = damped
         return force, stiffness, damping
 
     @ti.func
