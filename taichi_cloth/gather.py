@@ -45,15 +45,52 @@ def triangle_gather_lists(triangles: np.ndarray, particle_count: int):
     return start, triangle
 
 
-def side_lists(start: np.ndarray, neighbor: np.ndarray):
-    """A CSR list's entries of each row i, those to a lower neighbour (j < i) first: (entry (K,),
-    split (N,)), row i's lower entries ``entry[start[i]:split[i]]`` and the others
-    ``entry[split[i]:start[i + 1]]``, each in list order (rows whose neighbours ascend get the
-    identity). Gauss–Seidel sweeps read a row's half without walking the other, while sums over
-    whole rows keep the list order."""
-    count = len(start) - 1
-    owner = np.repeat(np.arange(count), np.diff(start))
+def sweep_rows(spring_start: np.ndarray, spring_neighbor: np.ndarray, coupled_rows,
+               particle_count: int):
+    """The rows of A's off-diagonal entries in the order Gauss–Seidel sweeps read them: each
+    particle's springs (gather entries) and the coupled effects' scalar entries H_ij merged,
+    each coupled entry folded into the row's first spring to the same neighbour when there is
+    one. ``coupled_rows``: per coupled effect (start (N+1,), neighbour (K,), H (K,), β [s]),
+    ∂f_i/∂x_j = −H_ij·I and ∂f_i/∂v_j = −β·H_ij·I (``Effect.coupled_rows``).
+
+    Returns (start (N+1,), bounds (N, 3), neighbour (S,), spring (S,), coupled (S, 2)): row i's
+    entries ``start[i]:start[i + 1]`` in four runs, cut at ``bounds[i]``: lower neighbours
+    (j < i) with a spring, lower ones with only coupled entries, then the same for j > i. An
+    entry's ``spring`` is its gather entry (−1: none) and ``coupled`` the sums Σ H_ij and
+    Σ β·H_ij [N/m, N·s/m] over the coupled effects. The springs of a run keep their gather
+    order, the coupled-only entries their neighbours' order, so the sweeps are reproducible.
+    One row's sums of a sweep then read each neighbour once, not once per list it is in."""
+    count = particle_count
+    owner = np.repeat(np.arange(count, dtype=np.int64), np.diff(spring_start))
+    neighbor = np.asarray(spring_neighbor, np.int64)
+    spring = np.arange(len(neighbor))
+    keys = owner * count + neighbor
+    spring_keys, first_spring = np.unique(keys, return_index=True)  # each pair's first spring
+    coupled_keys, coupled_values = [np.zeros(0, np.int64)], [np.zeros((0, 2))]
+    for start, rows_neighbor, value, damping_time in coupled_rows:
+        rows_owner = np.repeat(np.arange(count, dtype=np.int64), np.diff(start))
+        coupled_keys.append(rows_owner * count + rows_neighbor)
+        coupled_values.append(np.stack([value, damping_time * np.asarray(value)], axis=1))
+    coupled_keys, coupled_values = np.concatenate(coupled_keys), np.concatenate(coupled_values)
+    found = np.searchsorted(spring_keys, coupled_keys)
+    found[found == len(spring_keys)] = 0
+    folded = spring_keys[found] == coupled_keys if len(spring_keys) else \
+        np.zeros(len(coupled_keys), bool)
+    coupled = np.zeros((len(neighbor), 2))
+    np.add.at(coupled, first_spring[found[folded]], coupled_values[folded])
+    only, inverse = np.unique(coupled_keys[~folded], return_inverse=True)
+    only_values = np.stack([np.bincount(inverse, coupled_values[~folded, c], len(only))
+                            for c in (0, 1)], axis=1)
+    owner = np.concatenate([owner, only // count])
+    neighbor = np.concatenate([neighbor, only % count])
+    spring = np.concatenate([spring, np.full(len(only), -1)])
+    coupled = np.concatenate([coupled, only_values])
     upper = neighbor > owner
-    entry = np.argsort(2 * owner + upper, kind="stable").astype(np.int32)
-    split = start[:-1] + np.bincount(owner[~upper], minlength=count)
-    return entry, split.astype(np.int32)
+    run = 2 * upper + (spring < 0)
+    order = np.lexsort((np.where(spring < 0, neighbor, spring), run, owner))
+    owner, run = owner[order], run[order]
+    start = np.searchsorted(owner, np.arange(count + 1)).astype(np.int32)
+    bounds = np.stack([start[:-1] + np.bincount(owner[run < cut], minlength=count)
+                       for cut in (1, 2, 3)], axis=1).astype(np.int32)
+    return (start, bounds, neighbor[order].astype(np.int32), spring[order].astype(np.int32),
+            coupled[order])

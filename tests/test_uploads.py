@@ -1,7 +1,7 @@
 """``uploads.upload`` fills fields exactly as ``from_numpy`` does, in one launch, and an
 ``UploadBatch`` holds its copies until sent; a ``StateSet`` reads, writes and copies its states
-as ``to_numpy``, ``from_numpy`` and ``copy_from`` do; ``gather.side_lists`` splits CSR rows for
-the Gauss–Seidel sweeps."""
+as ``to_numpy``, ``from_numpy`` and ``copy_from`` do; ``gather.sweep_rows`` merges the springs'
+and the coupled effects' rows for the Gauss–Seidel sweeps."""
 
 import numpy as np
 import pytest
@@ -82,16 +82,46 @@ def test_an_array_of_the_wrong_shape_is_refused():
         upload([(ti.field(ti.f32, 5), np.zeros(4))])
 
 
-def test_side_lists_split_each_row_at_its_diagonal_and_keep_the_list_order():
-    """``gather.side_lists`` on a small spring list: each particle's entries to lower
-    neighbours, then to higher ones, each half in gather order."""
-    from taichi_cloth.gather import gather_lists, side_lists
-    springs = np.array([[0, 2], [1, 2], [2, 3], [0, 1], [3, 1]])
-    start, _, neighbor = gather_lists(springs, 4)
-    entry, split = side_lists(start, neighbor)
-    for i in range(4):
-        lower = [int(neighbor[k]) for k in entry[start[i]:split[i]]]
-        upper = [int(neighbor[k]) for k in entry[split[i]:start[i + 1]]]
-        in_order = [int(j) for j in neighbor[start[i]:start[i + 1]]]
-        assert lower == [j for j in in_order if j < i]
-        assert upper == [j for j in in_order if j > i]
+def test_sweep_rows_fold_coupled_entries_into_springs_and_split_each_row_in_four_runs():
+    """``gather.sweep_rows`` on a small spring list (a pair joined by two springs) and two
+    coupled effects: every spring entry is listed once; the coupled entries' sums Σ H and Σ β·H
+    per pair are what the effects give, each on the row's first spring to that neighbour or on
+    an entry of its own; a row's runs are lower with a spring (in gather order), lower without
+    (neighbours ascending), then the same for the upper neighbours."""
+    from taichi_cloth.gather import gather_lists, sweep_rows
+    count = 5
+    springs = np.array([[0, 2], [1, 2], [2, 3], [0, 1], [3, 1], [2, 0]])
+    start, _, neighbor = gather_lists(springs, count)
+    rng = np.random.default_rng(3)
+    coupled, expected = [], np.zeros((count, count, 2))
+    for damping_time in (0.5, 0.25):
+        dense = np.triu(rng.standard_normal((count, count)) * (rng.random((count, count)) < 0.6),
+                        1)
+        dense += dense.T
+        row_start = np.concatenate([[0], np.cumsum((dense != 0).sum(1))]).astype(np.int32)
+        rows, columns = np.nonzero(dense)
+        coupled.append((row_start, columns.astype(np.int32), dense[rows, columns], damping_time))
+        expected[..., 0] += dense
+        expected[..., 1] += damping_time * dense
+    row_start, bounds, entry_neighbor, entry_spring, sums = sweep_rows(start, neighbor, coupled,
+                                                                     count)
+    assert sorted(entry_spring[entry_spring >= 0]) == list(range(len(neighbor)))
+    listed = np.zeros_like(expected)
+    for i in range(count):
+        entries = range(row_start[i], row_start[i + 1])
+        runs = np.split(np.array(entries, int), bounds[i] - row_start[i])
+        for run, (upper, with_spring) in zip(runs, [(0, 1), (0, 0), (1, 1), (1, 0)]):
+            assert all((entry_neighbor[s] > i) == upper for s in run)
+            assert all((entry_spring[s] >= 0) == with_spring for s in run)
+            key = entry_spring[run] if with_spring else entry_neighbor[run]
+            assert list(key) == sorted(key)
+        for s in entries:
+            j = entry_neighbor[s]
+            if entry_spring[s] >= 0:
+                assert neighbor[entry_spring[s]] == j
+                assert start[i] <= entry_spring[s] < start[i + 1]
+                first = start[i] + list(neighbor[start[i]:start[i + 1]]).index(j)
+                assert entry_spring[s] == first or not sums[s].any()
+            listed[i, j] += sums[s]
+    np.testing.assert_allclose(listed, expected, rtol=1e-12, atol=1e-15)
+    assert (entry_spring >= 0).sum() == len(neighbor)

@@ -38,7 +38,7 @@ import numpy as np
 import taichi as ti
 
 from taichi_cloth.effects.base import Effect, EffectContext
-from taichi_cloth.gather import scatter_sum, side_lists
+from taichi_cloth.gather import scatter_sum
 from taichi_cloth.settings import setting
 
 
@@ -114,9 +114,6 @@ class Bending(Effect):
         self.row_neighbor = ti.field(ti.i32, entries)
         self.row_coefficient = ti.field(real, entries)
         self.diagonal = ti.field(real, model.particle_count)
-        # each row's first entry j > i (the rows ascend): the Gauss–Seidel sweeps' halves
-        _, self.host_row_split = side_lists(self.host_row_start, self.host_row_neighbor)
-        self.row_split = ti.field(ti.i32, model.particle_count)
         self.dashpot_time = model.dashpot_time or 0.0  # β [s]: c_e = β·B_e
 
     def upload(self) -> None:
@@ -126,7 +123,6 @@ class Bending(Effect):
                 (self.row_coefficient, self.host_row_coefficient.astype(real))] \
             if len(self.host_row_neighbor) else []
         self.model.uploads.add([*rows, (self.row_start, self.host_row_start),
-                                (self.row_split, self.host_row_split),
                                 (self.diagonal, self.host_diagonal.astype(real))])
 
     def allocate_lanes(self, grid) -> bool:
@@ -174,17 +170,11 @@ class Bending(Effect):
         stiffness = -self._row_product(u, i_p)
         return stiffness, self.dashpot_time * stiffness
 
-    @ti.func
-    def coupled_side_products(self, model, u, i_p, lower: ti.template()):
-        """``coupled_products`` over the row's entries j < i (``lower``) or j > i only: −Σ H_ij·u_j
-        and β times it (the diagonal left out)."""
-        total = ti.Vector.zero(self.model.real, 3)
-        first, last = self.row_start[i_p], self.row_split[i_p]
-        if ti.static(not lower):
-            first, last = self.row_split[i_p], self.row_start[i_p + 1]
-        for k in range(first, last):
-            total += self.row_coefficient[k] * u[self.row_neighbor[k]]
-        return -total, -self.dashpot_time * total
+    def coupled_rows(self):
+        """H's off-diagonal rows for the Gauss–Seidel sweeps (``gather.sweep_rows``): (start,
+        neighbour, H_ij [N/m], β [s]), ∂f_i/∂x_j = −H_ij·I and ∂f_i/∂v_j = −β·H_ij·I."""
+        return (self.host_row_start, self.host_row_neighbor, self.host_row_coefficient,
+                self.dashpot_time)
 
     @ti.func
     def coupled_diagonal(self, model, i_p):

@@ -232,8 +232,9 @@ class BackwardEuler(GaussSeidelSweeps, BlockConjugateGradient, Integrator):
     @ti.func
     def _blocks(self, i_p, h, time):
         """Particle i_p's part of A at the candidate (module docstring): n, a and b of each of
-        its gather entries, its own block L_i, and A's diagonal block A_ii and its inverse for the
-        preconditioners."""
+        its gather entries, its own block L_i, A's diagonal block A_ii and its inverse for the
+        preconditioners, and for Gauss–Seidel its row's off-diagonal blocks in the sweeps' order
+        (``GaussSeidelSweeps._sweep_blocks``)."""
         model = self.model
         x, v = ti.static(self.candidate.x, self.candidate.v)
         real = model.real
@@ -264,6 +265,8 @@ class BackwardEuler(GaussSeidelSweeps, BlockConjugateGradient, Integrator):
             own_block -= (h * damping + h * h * stiffness) * ti.Matrix.identity(real, 3)
         self.block[i_p] = diagonal_block + own_block
         self.inverse_block[i_p] = self.block[i_p].inverse()
+        if ti.static(self.gauss_seidel):
+            self._sweep_blocks(i_p, h)
 
     @ti.kernel
     def _accept(self, state: ti.template(), dt: ti.f64, last_newton: ti.i32):
