@@ -59,7 +59,8 @@ def sweep_rows(spring_start: np.ndarray, spring_neighbor: np.ndarray, coupled_ro
     entry's ``spring`` is its gather entry (−1: none) and ``coupled`` the sums Σ H_ij and
     Σ β·H_ij [N/m, N·s/m] over the coupled effects. The springs of a run keep their gather
     order, the coupled-only entries their neighbours' order, so the sweeps are reproducible.
-    One row's sums of a sweep then read each neighbour once, not once per list it is in."""
+    A row's sums then read each spring once and each neighbour that only coupled entries reach
+    once, not once per list it is in."""
     count = particle_count
     owner = np.repeat(np.arange(count, dtype=np.int64), np.diff(spring_start))
     neighbor = np.asarray(spring_neighbor, np.int64)
@@ -69,6 +70,8 @@ def sweep_rows(spring_start: np.ndarray, spring_neighbor: np.ndarray, coupled_ro
     coupled_keys, coupled_values = [np.zeros(0, np.int64)], [np.zeros((0, 2))]
     for start, rows_neighbor, value, damping_time in coupled_rows:
         rows_owner = np.repeat(np.arange(count, dtype=np.int64), np.diff(start))
+        if (rows_owner == rows_neighbor).any():
+            raise ValueError("sweep_rows: a coupled row holds its own diagonal entry")
         coupled_keys.append(rows_owner * count + rows_neighbor)
         coupled_values.append(np.stack([value, damping_time * np.asarray(value)], axis=1))
     coupled_keys, coupled_values = np.concatenate(coupled_keys), np.concatenate(coupled_values)

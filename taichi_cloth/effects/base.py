@@ -24,9 +24,9 @@ Genesis' ``force_fields.py``). What an effect declares:
   (a constant force). An effect that couples particles (bending) sets ``has_coupled_jacobian``
   and gives ``coupled_products(model, u, i_p)`` (the rows i of (∂f/∂x)·u and (∂f/∂v)·u),
   ``coupled_diagonal(model, i_p)`` (their diagonals, for the preconditioner),
-  ``coupled_rows()`` (host: the off-diagonal entries as scalar blocks, (start, neighbour, H_ij,
-  β) with ∂f_i/∂x_j = −H_ij·I and ∂f_i/∂v_j = −β·H_ij·I, which the Gauss–Seidel sweeps fold
-  into the springs' blocks: ``gather.sweep_rows``), and for
+  ``coupled_rows()`` (host: the off-diagonal entries, constant for the run, as scalar blocks,
+  (start, neighbour, H_ij, β) with ∂f_i/∂x_j = −H_ij·I and ∂f_i/∂v_j = −β·H_ij·I for j ≠ i,
+  which the Gauss–Seidel sweeps fold into the springs' blocks: ``gather.sweep_rows``), and for
   ``dt = "auto"`` ``rest_stiffness_product(u)`` and ``stiffness_row_sums(n)`` (host NumPy).
 - ``uniform_acceleration``: (a_x, a_y, a_z) [m/s²] when its force is m·a for every free particle
   (gravity), which lets a grid cloth step in SIMD lanes; None otherwise.

@@ -22,10 +22,11 @@ hula at h = 1/60 s the sweeps take CG from 118 to 63 iterations at the same tole
 with a smaller error in the energy norm (0.027 against 0.033 of the cold start's;
 docs/performance.md).
 
-The sweeps read A's off-diagonal blocks from rows of their own (``gather.sweep_rows``), made
-once per step (``_sweep_blocks``): per neighbour j of row i one entry, −(a·n·nᵀ + b·I), in which
-the coupled effects' scalar blocks (bending's (h·β + h²)·H_ij) are folded into the spring's b;
-the neighbours only bending reaches (its 2-ring) keep b alone. A row's sum then reads each
+The sweeps read A's off-diagonal blocks from rows of their own (``gather.sweep_rows``), filled
+once per Newton iteration (``_sweep_blocks``): one entry per spring of row i, −(a·n·nᵀ + b·I),
+in which the coupled effects' scalar blocks (bending's +(h·β + h²)·H_ij in A) are folded into
+the first spring to the same neighbour (b − (h·β + h²)·H_ij), and one entry −b·I for each
+neighbour that only a coupled effect reaches (bending's 2-ring). A row's sum then reads each
 neighbour once instead of once per list (on ``hula``: 11.6 entries a row instead of 7.8 springs
 and 11.6 bending entries).
 
