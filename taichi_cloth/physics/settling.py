@@ -39,32 +39,44 @@ def settle(simulation, run_record: RunRecord) -> dict | None:
     to ``settle``. A step halved by the frame guard while settling (for strain; the guard
     keeps a halved step for the rest of a run) says nothing of the dance, whose frames the
     guard checks in turn: kept, it made a silk skirt on the coarse body dance at 1/120 s
-    instead of 1/60 s, at twice the cost and with ``retries`` 0 in stats.json."""
+    instead of 1/60 s, at twice the cost and with ``retries`` 0 in stats.json. The implicit
+    integrator's solves start cold while settling (its warm start is off, and back on for the
+    dance): started from the last step's velocity change, CG's stopping error recurs alike from
+    step to step on a garment near rest, and a silk skirt at 1/60 s buzzed at 0.1-0.7 m/s
+    instead of coming to rest at 3 of 5 CG tolerances around the scene's, against none of 5
+    started cold (docs/physics.md, "Settling before the dance")."""
     settings = simulation.scene.simulation
     if settings.settle <= 0:
         return None
     started = time.perf_counter()
-    unconverged_before = getattr(simulation.integrator, "unconverged_steps", 0)
-    start = simulation.positions()
-    chosen = simulation.time_step
-    before = simulation.snapshot(effects=True)
-    compile_seconds = 0.0
-    for halvings in range(SETTLE_STEP_HALVINGS + 1):
-        if halvings:
-            simulation.restore(before)  # the same start, integrator memory and crossings
-        record = RunRecord()
-        outcome = settle_at(simulation, start, chosen.dt / 2 ** halvings, record)
-        compile_seconds += record.wall_seconds["compile"]
-        at_rest = outcome[2]
-        if at_rest or settings.settle < SETTLE_RETRY_MIN_SECONDS:
-            break
-        if halvings == 0:
-            first_try = simulation.snapshot(effects=True), outcome, record
-    if not at_rest and halvings:  # no step came to rest: the scene's step's try is kept
-        snapshot, outcome, record = first_try
-        simulation.restore(snapshot)
-        halvings = 0
-    simulation.set_time_step(chosen.dt / 2 ** halvings, chosen.substeps_per_frame * 2 ** halvings)
+    integrator = simulation.integrator
+    warm_start = integrator.warm_start
+    integrator.warm_start = False  # settling solves from cold (docstring)
+    try:
+        unconverged_before = getattr(integrator, "unconverged_steps", 0)
+        start = simulation.positions()
+        chosen = simulation.time_step
+        before = simulation.snapshot(effects=True)
+        compile_seconds = 0.0
+        for halvings in range(SETTLE_STEP_HALVINGS + 1):
+            if halvings:
+                simulation.restore(before)  # the same start, integrator memory and crossings
+            record = RunRecord()
+            outcome = settle_at(simulation, start, chosen.dt / 2 ** halvings, record)
+            compile_seconds += record.wall_seconds["compile"]
+            at_rest = outcome[2]
+            if at_rest or settings.settle < SETTLE_RETRY_MIN_SECONDS:
+                break
+            if halvings == 0:
+                first_try = simulation.snapshot(effects=True), outcome, record
+        if not at_rest and halvings:  # no step came to rest: the scene's step's try is kept
+            snapshot, outcome, record = first_try
+            simulation.restore(snapshot)
+            halvings = 0
+        simulation.set_time_step(chosen.dt / 2 ** halvings,
+                                 chosen.substeps_per_frame * 2 ** halvings)
+    finally:
+        integrator.warm_start = warm_start
     run_record.wall_seconds["compile"] += compile_seconds
     run_record.wall_seconds["settle"] = time.perf_counter() - started - compile_seconds
     simulated, mean_speed, at_rest = outcome

@@ -57,6 +57,7 @@ class Integrator:
     substep_batch = 2  # parallel substeps per kernel launch (each unrolled copy adds compile time)
     serial_particle_limit = SERIAL_PARTICLE_LIMIT  # cloth this small runs on one thread
     substeps_write_states = True  # False where substeps keep the state in packed lanes
+    warm_start = False  # whether a step's solve starts from the last step's (the implicit one)
     # whether the launch kernels compile without Taichi's IR passes (``without_taichi_passes``)
     compiles_without_passes = False
 
