@@ -126,3 +126,13 @@ def test_sweep_rows_fold_coupled_entries_into_springs_and_split_each_row_in_four
             listed[i, j] += sums[s]
     np.testing.assert_allclose(listed, expected, rtol=1e-12, atol=1e-15)
     assert (entry_spring >= 0).sum() == len(neighbor)
+
+
+def test_sweep_rows_refuse_a_coupled_row_that_holds_its_diagonal():
+    """The coupled effects give off-diagonal entries only (their diagonals go to A_ii); one on
+    the diagonal would otherwise be filed as a neighbour of its own row."""
+    from taichi_cloth.gather import gather_lists, sweep_rows
+    start, _, neighbor = gather_lists(np.array([[0, 1]]), 2)
+    diagonal = (np.array([0, 1, 1], np.int32), np.array([0], np.int32), np.array([1.0]), 0.0)
+    with pytest.raises(ValueError, match="diagonal"):
+        sweep_rows(start, neighbor, [diagonal], 2)
