@@ -74,20 +74,18 @@ def sweep_rows(spring_start: np.ndarray, spring_neighbor: np.ndarray, coupled_ro
             raise ValueError("sweep_rows: a coupled row holds its own diagonal entry")
         coupled_keys.append(rows_owner * count + rows_neighbor)
         coupled_values.append(np.stack([value, damping_time * np.asarray(value)], axis=1))
-    coupled_keys, coupled_values = np.concatenate(coupled_keys), np.concatenate(coupled_values)
-    found = np.searchsorted(spring_keys, coupled_keys)
-    found[found == len(spring_keys)] = 0
-    folded = spring_keys[found] == coupled_keys if len(spring_keys) else \
-        np.zeros(len(coupled_keys), bool)
+    pairs, inverse = np.unique(np.concatenate(coupled_keys), return_inverse=True)
+    values = np.concatenate(coupled_values)
+    sums = np.stack([np.bincount(inverse, values[:, c], len(pairs)) for c in (0, 1)], axis=1)
+    found = np.minimum(np.searchsorted(spring_keys, pairs), max(len(spring_keys) - 1, 0))
+    folded = spring_keys[found] == pairs if len(spring_keys) else np.zeros(len(pairs), bool)
     coupled = np.zeros((len(neighbor), 2))
-    np.add.at(coupled, first_spring[found[folded]], coupled_values[folded])
-    only, inverse = np.unique(coupled_keys[~folded], return_inverse=True)
-    only_values = np.stack([np.bincount(inverse, coupled_values[~folded, c], len(only))
-                            for c in (0, 1)], axis=1)
+    coupled[first_spring[found[folded]]] = sums[folded]  # each pair once: its first spring
+    only = pairs[~folded]
     owner = np.concatenate([owner, only // count])
     neighbor = np.concatenate([neighbor, only % count])
     spring = np.concatenate([spring, np.full(len(only), -1)])
-    coupled = np.concatenate([coupled, only_values])
+    coupled = np.concatenate([coupled, sums[~folded]])
     upper = neighbor > owner
     run = 2 * upper + (spring < 0)
     order = np.lexsort((np.where(spring < 0, neighbor, spring), run, owner))
