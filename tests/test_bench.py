@@ -154,3 +154,40 @@ def test_bench_with_scenes_takes_integrators_for_their_rows_alone(monkeypatch):
     bench.run_bench(None, ["rk4"], None, 0.1, 1)
     assert calls == [(part, size) for size in bench.DEFAULT_SIZES
                      for part in ("reference", "numpy")]
+
+
+def test_an_effect_cost_is_the_median_paired_difference_or_at_most_a_bound():
+    """``effect_cost``: a clear difference is the median of the pairs' differences, inside
+    its interval; differences that straddle 0 (noise) or lie below it (the scene is faster with
+    the effect) are no cost, only a bound that is never negative. The pairs share the
+    machine's slow moments (``base``), which the differences cancel."""
+    from taichi_cloth.studies.bench_scene import effect_cost
+    rng = np.random.default_rng(7)
+    base = 7e-3 + 1e-3 * rng.random(60)  # seconds a substep, the machine's ±0.5 ms
+    paired_noise = 30e-6 * rng.standard_normal(60)
+    cost = effect_cost(list(base + 200e-6 + paired_noise), list(base))
+    low, high = cost["interval_us_per_substep"]
+    assert not cost["below_noise"]
+    assert cost["cost_us_per_substep"] == pytest.approx(200, abs=15)
+    assert 0 < low < cost["cost_us_per_substep"] < high < 250
+    noise = effect_cost(list(base + paired_noise), list(base))
+    assert noise["below_noise"] and noise["cost_us_per_substep"] is None
+    assert noise["interval_us_per_substep"][0] <= 0 <= noise["noise_us_per_substep"] < 30
+    faster = effect_cost(list(base - 100e-6 + paired_noise), list(base))
+    assert faster["below_noise"] and faster["noise_us_per_substep"] == 0
+
+
+@pytest.mark.parametrize("count", [20, 45, 100])
+def test_an_effect_costs_interval_holds_the_median_95_percent_of_the_time(count):
+    """The order-statistic interval of ``effect_cost`` covers the true median of the
+    differences in at least 95 % of samples of ``count`` pairs (skewed noise, as a machine's
+    slow moments are)."""
+    from taichi_cloth.studies.bench_scene import effect_cost
+    rng = np.random.default_rng(count)
+    true_median = 50e-6 + 20e-6 * np.log(2)  # of 50 µs + an exponential of mean 20 µs
+    trials, covered = 2000, 0
+    for _ in range(trials):
+        differences = 50e-6 + rng.exponential(20e-6, count)
+        low, high = effect_cost(list(differences), [0.0] * count)["interval_us_per_substep"]
+        covered += low <= 1e6 * true_median <= high
+    assert covered / trials >= 0.95

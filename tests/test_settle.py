@@ -185,3 +185,29 @@ def test_settling_solves_from_cold_and_the_dance_from_the_last_step(settled, mon
     weights.clear()
     simulation.run(1, record=RunRecord())
     assert weights[1:] and all(weight > 0 for weight in weights[1:])
+
+
+def test_bench_runs_a_frame_again_from_one_state_at_held_iterations(settled):
+    """`bench`'s effect costs (``studies.bench_scene``): each run of a frame starts again from
+    one snapshot, and with CG held at K iterations every step takes exactly K, so the runs with
+    and without an effect do the same solver work whatever their trajectories; two runs from
+    the snapshot end in the same state, bit for bit. Puts the shared skirt back afterwards."""
+    from taichi_cloth.studies.bench_scene import frame_iterations, frame_seconds, hold_iterations
+    simulation = settled[0]
+    integrator = simulation.integrator
+    kept = integrator.tolerance, integrator.max_iterations
+    snapshot = simulation.snapshot()
+    try:
+        free = frame_iterations(simulation, snapshot, 3)
+        held = round(free) + 7
+        hold_iterations(simulation, held)
+        assert frame_seconds(simulation, snapshot, 3) > 0
+        first = simulation.host_state()
+        frame_seconds(simulation, snapshot, 3)
+        steps = 2 * simulation.time_step.substeps_per_frame
+        assert integrator.take_iterations() == [held] * steps
+        for a, b in zip(first, simulation.host_state()):
+            np.testing.assert_array_equal(a, b)
+    finally:
+        integrator.tolerance, integrator.max_iterations = kept
+        simulation.restore(snapshot)

@@ -16,10 +16,11 @@ Real scenes (``--scene``, a comma list; by default ``REAL_SCENES``): each with e
 (its own at the scene's step, the others at their auto step: particle-substeps per second and
 wall seconds per simulated second), and its whole run as ``simulate`` does it (start-up,
 compile and settling timed apart); for ``hula`` (or every scene named with ``--scene``) also
-the cost of each effect, from the scene with and without it measured in turns (an effect the
-scene lacks is added with its defaults; a cost within the noise is reported as such, never
-negative), and the spring and contact passes on their own; by default also ``hula`` at
-128 × 56.
+the cost of each effect, from the scene with and without it measured in turns on the same
+frame from the same settled state, backward Euler's CG held at the same iterations a step (an
+effect the scene lacks is added with its defaults; a cost within the noise is reported as such,
+never negative; the iterations an effect adds or saves are reported apart), and the spring and
+contact passes on their own; by default also ``hula`` at 128 × 56.
 """
 
 import time
@@ -180,13 +181,20 @@ def report(rows: list[dict], fits: dict) -> str:
         if kind == "scene":
             parts.append(f"{row['scene']} ({row['size']}, {row['integrator']}, "
                          f"{', '.join(row['effects'])}): "
-                         f"{format_rate(row['substeps_per_second'])} substeps/s")
+                         f"{format_rate(row['substeps_per_second'])} substeps/s on frame "
+                         f"{row['frame']}, each effect's cost on it from the same state"
+                         + (f", CG held at {row['cg_iterations_held']} iterations a step"
+                            if "cg_iterations_held" in row else ""))
         elif kind == "effect":
             state = "declared" if row["declared_in_scene"] else "added"
-            cost = f"below the noise of {row['noise_us_per_substep']:.2f} µs per substep" \
+            cost = f"below the noise (at most {row['noise_us_per_substep']:.2f} µs per " \
+                "substep)" \
                 if row["below_noise"] else \
                 f"{row['cost_us_per_substep']:8.2f} µs per substep, " \
                 f"{row['cost_ns_per_particle_substep']:7.2f} ns per particle-substep"
+            if "cg_iterations_held" in row:
+                cost += (f"; CG iterations a step {row['cg_iterations_with']:.1f} with it, "
+                         f"{row['cg_iterations_without']:.1f} without")
             parts.append(f"  effect {row['effect']:<10} ({state}): {cost}")
         elif kind == "scene-integrator":
             if "no_stable_step" in row:

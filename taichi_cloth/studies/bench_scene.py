@@ -2,6 +2,7 @@
 their own, and a whole scene's simulated seconds per wall second (``studies/bench.py`` has the
 reference sheet and the report)."""
 
+import math
 import statistics
 import time
 from collections.abc import Iterator
@@ -13,6 +14,9 @@ from taichi_cloth.errors import InputError
 from taichi_cloth.studies.timing import substep_row, timed_rate
 
 METRIC_REPEATS = 20  # timings of the self-intersection count on a scene's last frame
+SETTLED_FRAMES = 30  # frames into the motion (1 s of hula's) of the state that each effect's
+                     # timing starts from
+MIN_PAIRS = 20  # runs of a frame with and without an effect, at least
 
 
 @ti.data_oriented
@@ -114,39 +118,108 @@ def frame_rate(simulation, seconds: float, repeats: int) -> list[float]:
     return timed_rate(run_batch, simulation.time_step.substeps_per_frame, seconds, repeats)
 
 
-def interleaved_seconds(first, second, seconds: float, repeats: int) -> tuple[list, list]:
-    """Seconds per substep of two simulations, measured in turns (first, second, first, ...)
+def settled_start(simulation):
+    """The scene settled (when it settles) and ``SETTLED_FRAMES`` frames into its motion (all
+    but its last, if it has fewer): (its snapshot, the frame after)."""
+    from taichi_cloth.physics.metrics import RunRecord
+    from taichi_cloth.physics.settling import settle
+    record = RunRecord()
+    settle(simulation, record)
+    frames = max(0, min(SETTLED_FRAMES, simulation.scene.frame_count - 1))
+    for frame in range(1, frames + 1):
+        simulation.advance_frame(frame, record)
+    return simulation.snapshot(), frames + 1
+
+
+def frame_iterations(simulation, snapshot, frame: int) -> float | None:
+    """CG iterations a step of ``frame`` from ``snapshot`` at the scene's tolerance, on the
+    mean (None for an integrator without a solve)."""
+    from taichi_cloth.physics.metrics import RunRecord
+    integrator = simulation.integrator
+    if not integrator.uses_jacobian:
+        return None
+    simulation.restore(snapshot)
+    integrator.take_iterations()
+    simulation.advance_frame(frame, RunRecord())
+    return statistics.mean(integrator.take_iterations())
+
+
+def hold_iterations(simulation, iterations: int | None) -> None:
+    """Every later solve of the simulation takes exactly ``iterations`` CG iterations
+    (tolerance 0; nothing for None), so that two simulations do the same solver work."""
+    if iterations is not None:
+        simulation.integrator.tolerance = 0.0
+        simulation.integrator.max_iterations = iterations
+
+
+def frame_seconds(simulation, snapshot, frame: int) -> float:
+    """Seconds per substep of one run of ``frame`` (body posing included) from ``snapshot``."""
+    from taichi_cloth.physics.metrics import RunRecord
+    simulation.restore(snapshot)
+    started = time.perf_counter()
+    simulation.advance_frame(frame, RunRecord())
+    ti.sync()
+    return (time.perf_counter() - started) / simulation.time_step.substeps_per_frame
+
+
+def paired_seconds(first, second, snapshot, frame: int, seconds: float) -> tuple[list, list]:
+    """Seconds per substep of two simulations on the same frame from the same state
+    (``frame_seconds``), in turns (first, second, first, ...) for at least ``seconds`` and
+    ``MIN_PAIRS`` pairs, after a run of each untimed: each pair ran within a few frames' time,
     so that a change in the machine's load falls on both alike."""
+    for simulation in (first, second):
+        frame_seconds(simulation, snapshot, frame)
     times = ([], [])
-    for _ in range(repeats):
+    started = time.perf_counter()
+    while len(times[0]) < MIN_PAIRS or time.perf_counter() - started < seconds:
         for simulation, out in zip((first, second), times):
-            out.extend(1.0 / rate for rate in frame_rate(simulation, seconds / 2, 1))
+            out.append(frame_seconds(simulation, snapshot, frame))
     return times
 
 
 def effect_cost(with_times: list, without_times: list) -> dict:
-    """An effect's cost per substep from interleaved repeats [s]: the difference of the
-    medians, unless it is within the noise (the larger half-range of the two sets of repeats),
-    when it is reported as below that bound instead: a cost is never negative."""
-    cost = statistics.median(with_times) - statistics.median(without_times)
-    noise = max(0.5 * (max(t) - min(t)) for t in (with_times, without_times))
-    below_noise = cost <= noise
-    return {"cost_us_per_substep": None if below_noise else round(1e6 * cost, 3),
-            "noise_us_per_substep": round(1e6 * noise, 3), "below_noise": below_noise}
+    """An effect's cost per substep from paired runs [s] (``paired_seconds``): the median of
+    the pairs' differences, with its 95 % confidence interval from their order statistics
+    (distribution-free: the ranks n/2 ∓ 0.98·√n of the sorted differences; Conover,
+    "Practical Nonparametric Statistics", 3rd ed., §3.2). Where the interval reaches 0 or
+    below, the cost is not told from the noise and is reported as at most the interval's upper
+    end (``noise_us_per_substep``, never below 0) instead: a cost is never negative."""
+    differences = sorted(w - o for w, o in zip(with_times, without_times))
+    count = len(differences)
+    rank = max(1, math.floor(count / 2 - 0.98 * math.sqrt(count)))
+    low, high = differences[rank - 1], differences[count - rank]
+    below_noise = low <= 0
+    return {"cost_us_per_substep": None if below_noise
+            else round(1e6 * statistics.median(differences), 3),
+            "noise_us_per_substep": round(1e6 * max(high, 0.0), 3),
+            "interval_us_per_substep": [round(1e6 * low, 3), round(1e6 * high, 3)],
+            "below_noise": below_noise}
 
 
 def bench_effects(scene_name: str, seconds: float, repeats: int) -> Iterator[dict]:
     """The cost of each effect: the scene with and without it (added with its defaults when the
-    scene lacks it and can have it), in turns (``interleaved_seconds``), in microseconds per
-    substep and nanoseconds per particle-substep; a cost within the noise is reported as such
-    (``effect_cost``). Each row is yielded when measured (a part cut short keeps its rows)."""
+    scene lacks it and can have it), in microseconds per substep and nanoseconds per
+    particle-substep; a cost within the noise is reported as such (``effect_cost``). Both
+    run the same frame from the same state, settled and ``SETTLED_FRAMES`` into the motion,
+    in turns (``paired_seconds``, for ``repeats`` × ``seconds``): a cost is the effect's
+    work, not a change of trajectory (measured as two free runs, gravity and ground "cost"
+    what a skirt that floats or lands does instead). Where the integrator solves (backward
+    Euler), each solve is held at the iterations that the scene takes a step on that frame
+    (``hold_iterations``): how many iterations an effect adds or saves depends on the state,
+    and is reported apart (``cg_iterations_with`` / ``_without``, at the scene's tolerance).
+    Each row is yielded when measured (a part cut short keeps its rows)."""
     base = scene_simulation(scene_name)
-    base_rates = frame_rate(base, seconds, repeats)
+    snapshot, frame = settled_start(base)
+    base_iterations = frame_iterations(base, snapshot, frame)
+    held = None if base_iterations is None else max(1, round(base_iterations))
+    hold_iterations(base, held)
+    base_times = [frame_seconds(base, snapshot, frame) for _ in range(repeats + 1)][1:]
     particles = base.model.particle_count
     size = f"{base.garment.columns}x{base.garment.rows}"
     integrator = base.scene.simulation.integrator
-    yield substep_row("scene", integrator, size, particles, base_rates,
-                      scene=scene_name, effects=base.effect_names)
+    solver = {} if held is None else {"cg_iterations_held": held}
+    yield substep_row("scene", integrator, size, particles, [1.0 / t for t in base_times],
+                      scene=scene_name, effects=base.effect_names, frame=frame, **solver)
     for name in (effect.name for effect in EFFECTS):
         declared = name in base.scene.effects
         try:
@@ -154,9 +227,15 @@ def bench_effects(scene_name: str, seconds: float, repeats: int) -> Iterator[dic
                                      (f"effects.{name}={'false' if declared else 'true'}",))
         except InputError:  # the scene cannot have it (collision without a body, ...)
             continue
-        if other.time_step.dt != base.time_step.dt:  # an auto step the effect changes
-            other.set_time_step(base.time_step.dt, base.time_step.substeps_per_frame)
-        base_times, other_times = interleaved_seconds(base, other, seconds, repeats)
+        iterations = {}
+        if held is not None:
+            other_iterations = frame_iterations(other, snapshot, frame)
+            iterations = {"cg_iterations_with": other_iterations, "cg_iterations_without":
+                          base_iterations} if not declared else \
+                {"cg_iterations_with": base_iterations, "cg_iterations_without": other_iterations}
+            hold_iterations(other, held)
+        base_times, other_times = paired_seconds(base, other, snapshot, frame,
+                                                 seconds * repeats)
         with_times, without_times = (base_times, other_times) if declared \
             else (other_times, base_times)
         cost = effect_cost(with_times, without_times)
@@ -167,7 +246,8 @@ def bench_effects(scene_name: str, seconds: float, repeats: int) -> Iterator[dic
                           declared_in_scene=declared,
                           substeps_per_second_with=1.0 / statistics.median(with_times),
                           substeps_per_second_without=1.0 / statistics.median(without_times),
-                          cost_ns_per_particle_substep=per_particle, **cost)
+                          cost_ns_per_particle_substep=per_particle, **cost, **solver,
+                          **iterations)
 
 
 def bench_scene_integrators(scene_name: str, seconds: float, repeats: int,
