@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from taichi_cloth.effects.wind import Wind
+from taichi_cloth.effects.drag import Drag, DragSettings
+from taichi_cloth.effects.wind import Wind, WindSettings
 from taichi_cloth.physics.metrics import spring_energy
 from taichi_cloth.cloth.garment import build_garment
 from taichi_cloth.physics.model import Model
@@ -93,3 +94,83 @@ def test_undeclared_wind_is_not_compiled_and_declared_wind_acts():
     zero, zero_x = flag_positions("effects.wind.strength=0")
     assert "wind" in zero.effect_names
     np.testing.assert_allclose(zero_x, calm_x, atol=1e-12)
+
+
+def numpy_air_forces(x, v, triangles, t, wind: WindSettings, drag: DragSettings):
+    """Drag and wind in NumPy, apart from the kernels (seed §2.3; ``effects.aerodynamics``):
+    on each face the flat plate's ½ρC·A·(u·n)|u·n|·n of the air relative to it (u = −v_face
+    for drag, w − v_face minus −v_face for the wind, w the gusty wind at the face's centroid),
+    a third to each corner [N]."""
+    a, b, c = (x[triangles[:, k]] for k in range(3))
+    cross = np.cross(b - a, c - a)
+    twice_area = np.linalg.norm(cross, axis=1)
+    n = cross / twice_area[:, None]
+    v_face = v[triangles].mean(axis=1)
+    beta, gamma = np.radians(wind.azimuth), np.radians(wind.elevation)
+    direction = np.array([np.cos(gamma) * np.cos(beta), np.sin(gamma),
+                          np.cos(gamma) * np.sin(beta)])
+    omega = 2 * np.pi * wind.gust_frequency
+    tau = t - (a + b + c) / 3 @ direction / max(wind.strength, 0.1)
+    gust = (np.sin(omega * tau) + 0.5 * np.sin(2.3 * omega * tau + 1.3)
+            + 0.25 * np.sin(4.7 * omega * tau + 0.7)) / 1.75
+    w = wind.strength * (1 + wind.gusts * gust)[:, None] * direction
+
+    def pressure(u, density, coefficient):
+        along = (u * n).sum(axis=1)
+        return (0.5 * density * coefficient * 0.5 * twice_area * along * np.abs(along))[:, None] * n
+
+    face = pressure(-v_face, drag.air_density, drag.coefficient) \
+        + pressure(w - v_face, wind.air_density, wind.coefficient) \
+        - pressure(-v_face, wind.air_density, wind.coefficient)
+    out = np.zeros_like(x)
+    for k in range(3):
+        np.add.at(out, triangles[:, k], face / 3)
+    return out
+
+
+def test_drag_and_gusty_wind_agree_with_numpy_and_their_damping_blocks_with_differences():
+    """Each face computed once (``aerodynamics.FaceAir``): the air's forces on a crumpled,
+    fast-moving sheet (some faces outrun the wind) equal the NumPy faces', and each particle's
+    ∂f_i/∂v_i (drag's and the wind's face blocks, exact in v: the normal does not depend on v)
+    equals central differences of its force in its own velocity."""
+    scene = small_sheet()
+    garment = build_garment(scene.cloth, scene.material)
+    wind = WindSettings(strength=3.0, azimuth=30.0, elevation=20.0, gusts=0.5)
+    drag = DragSettings(coefficient=1.3)
+    springs_only = assemble(Model(garment, "f64", None)).forces
+    model = Model(garment, "f64", None)
+    forces = assemble(model, [(Drag, drag), (Wind, wind)]).forces
+    rng = np.random.default_rng(5)
+    x = garment.positions + 0.02 * rng.standard_normal(garment.positions.shape)
+    v = 2.0 * rng.standard_normal(garment.positions.shape)
+    t = 0.7
+    n = model.particle_count
+    state = model.state()
+    out, u_field, stiffness_u, damping_u = (ti.Vector.field(3, ti.f64, n) for _ in range(4))
+
+    def force_at(evaluated, velocity):
+        state.x.from_numpy(x)
+        state.v.from_numpy(velocity)
+        evaluated.evaluate(state.x, state.v, t, out)
+        return out.to_numpy()
+
+    def air_at(velocity):  # the springs' (large, velocity-free) force taken out exactly
+        return force_at(forces, velocity) - force_at(springs_only, velocity)
+
+    air = air_at(v)
+    expected = numpy_air_forces(x, v, garment.triangles, t, wind, drag)
+    assert np.abs(expected).max() > 1e-3
+    np.testing.assert_allclose(air, expected, atol=1e-9 * np.abs(expected).max())
+    eps = 1e-4  # the two kernels' spring forces (~10² N) round apart at ~10⁻¹⁴ N
+    for i_p in rng.choice(n, 6, replace=False):
+        u = np.zeros_like(x)
+        u[i_p] = rng.standard_normal(3)
+        state.x.from_numpy(x)
+        state.v.from_numpy(v)
+        u_field.from_numpy(u)
+        forces.evaluate_jacobian_products(state.x, state.v, u_field, t, False, stiffness_u,
+                                          damping_u)
+        numeric = (air_at(v + eps * u) - air_at(v - eps * u)) / (2 * eps)
+        assert np.abs(numeric[i_p]).max() > 1e-4
+        np.testing.assert_allclose(damping_u.to_numpy()[i_p], numeric[i_p],
+                                   atol=1e-6 * np.abs(numeric[i_p]).max())

@@ -11,7 +11,8 @@ from dataclasses import dataclass
 
 import taichi as ti
 
-from taichi_cloth.effects.aerodynamics import face_damping, face_pressure, face_velocity
+from taichi_cloth.effects.aerodynamics import (FaceAir, face_damping, face_geometry,
+                                               face_pressure, face_velocity)
 from taichi_cloth.effects.base import Effect, EffectContext
 from taichi_cloth.settings import setting
 
@@ -35,26 +36,19 @@ class Drag(Effect):
     def __init__(self, settings: DragSettings, context: EffectContext):
         super().__init__(settings, context)
         self.face_factor = 0.5 * settings.air_density * settings.coefficient  # ½ρC_d [kg/m³]
-        model = context.model
-        self.model = model
-        faces = max(1, model.triangle_count)
-        # each face's pressure (without ½ρC_d) [N] at the last ``prepare``
-        self.face_force = ti.Vector.field(3, model.real, faces)
-        # and its ``face_damping`` (n, w), for the implicit solver's blocks only
-        self.keeps_blocks = context.needs_jacobian
-        if self.keeps_blocks:
-            self.face_normal = ti.Vector.field(3, model.real, faces)
-            self.face_weight = ti.field(model.real, faces)
+        self.model = context.model
+        self.faces = FaceAir(context.model, context.needs_jacobian)
 
     @ti.func
     def prepare(self, x, v, t):
-        """Every face's pressure of still air, once (and its damping, ``keeps_blocks``)."""
+        """Every face's pressure of still air, once (and its damping, for the implicit
+        solver)."""
         model = self.model
         for i_t in range(model.triangle_count):
             air = self._air(model, v, i_t)
-            self.face_force[i_t] = face_pressure(model, x, i_t, air)
-            if ti.static(self.keeps_blocks):
-                self.face_normal[i_t], self.face_weight[i_t] = face_damping(model, x, i_t, air)
+            normal, twice_area = face_geometry(model, x, i_t)
+            self.faces.store(i_t, face_pressure(normal, twice_area, air), normal,
+                             face_damping(normal, twice_area, air))
 
     @ti.func
     def face_air(self, face_velocity: ti.template()):
@@ -69,21 +63,12 @@ class Drag(Effect):
     @ti.func
     def force(self, model, x, v, i_p, t):
         """A third of the pressure of each of the particle's faces (after ``prepare``)."""
-        f = ti.Vector.zero(model.real, 3)
-        for k in range(model.particle_triangle_start[i_p], model.particle_triangle_start[i_p + 1]):
-            f += self.face_force[model.particle_triangle[k]]
-        return model.real(self.face_factor) / 3.0 * f
+        return self.faces.particle_force(model, i_p, model.real(self.face_factor))
 
     @ti.func
     def local_jacobian(self, model, x, v, i_p, t, definite: ti.template()):
         """(0, ∂f/∂v_i): the faces' ``face_damping`` for still air (after ``prepare``),
         negative semi-definite. Explicit quadratic drag overshoots at large steps on light cloth
         (h·ρ_air·C_d·|u|/ρ_cloth > 2 in a gale)."""
-        ti.static_assert(self.keeps_blocks, "drag's blocks were not asked for "
-                                            "(EffectContext.needs_jacobian)")
-        damping = ti.Matrix.zero(model.real, 3, 3)
-        for k in range(model.particle_triangle_start[i_p], model.particle_triangle_start[i_p + 1]):
-            i_t = model.particle_triangle[k]
-            normal = self.face_normal[i_t]
-            damping -= self.face_weight[i_t] * normal.outer_product(normal)
-        return ti.Matrix.zero(model.real, 3, 3), model.real(self.face_factor) * damping
+        return ti.Matrix.zero(model.real, 3, 3), self.faces.particle_damping(
+            model, i_p, model.real(self.face_factor), definite)
