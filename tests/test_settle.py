@@ -196,12 +196,12 @@ def test_bench_runs_a_frame_again_from_one_state_at_held_iterations(settled):
     simulation = settled[0]
     integrator = simulation.integrator
     kept = integrator.tolerance, integrator.max_iterations
-    snapshot = simulation.snapshot()
+    snapshot = simulation.snapshot(effects=True)
     try:
         free = frame_iterations(simulation, snapshot, 3)
         held = round(free) + 7
         hold_iterations(simulation, held)
-        assert frame_seconds(simulation, snapshot, 3) > 0
+        frame_seconds(simulation, snapshot, 3)
         first = simulation.host_state()
         frame_seconds(simulation, snapshot, 3)
         steps = 2 * simulation.time_step.substeps_per_frame

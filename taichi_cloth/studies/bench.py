@@ -187,11 +187,15 @@ def report(rows: list[dict], fits: dict) -> str:
                             if "cg_iterations_held" in row else ""))
         elif kind == "effect":
             state = "declared" if row["declared_in_scene"] else "added"
-            cost = f"below the noise (at most {row['noise_us_per_substep']:.2f} µs per " \
-                "substep)" \
-                if row["below_noise"] else \
-                f"{row['cost_us_per_substep']:8.2f} µs per substep, " \
-                f"{row['cost_ns_per_particle_substep']:7.2f} ns per particle-substep"
+            low, high = row["interval_us_per_substep"]
+            if row["cost_us_per_substep"] is not None:
+                cost = f"{row['cost_us_per_substep']:8.2f} µs per substep, " \
+                    f"{row['cost_ns_per_particle_substep']:7.2f} ns per particle-substep"
+            elif row["faster_with_effect"]:
+                cost = f"no cost: the substep is {-high:.2f} to {-low:.2f} µs faster with it"
+            else:
+                cost = f"below the noise (at most {row['noise_us_per_substep']:.2f} µs per " \
+                    "substep)"
             if "cg_iterations_held" in row:
                 cost += (f"; CG iterations a step {row['cg_iterations_with']:.1f} with it, "
                          f"{row['cg_iterations_without']:.1f} without")

@@ -120,7 +120,10 @@ def frame_rate(simulation, seconds: float, repeats: int) -> list[float]:
 
 def settled_start(simulation):
     """The scene settled (when it settles) and ``SETTLED_FRAMES`` frames into its motion (all
-    but its last, if it has fewer): (its snapshot, the frame after)."""
+    but its last, if it has fewer): (its snapshot with what its effects carry, the frame
+    after). Restored into a simulation with another set of effects, each effect gets its own
+    memory by name; an effect the snapshot lacks starts afresh (self-collision added to a
+    scene rebuilds its list at every run of the frame)."""
     from taichi_cloth.physics.metrics import RunRecord
     from taichi_cloth.physics.settling import settle
     record = RunRecord()
@@ -128,7 +131,7 @@ def settled_start(simulation):
     frames = max(0, min(SETTLED_FRAMES, simulation.scene.frame_count - 1))
     for frame in range(1, frames + 1):
         simulation.advance_frame(frame, record)
-    return simulation.snapshot(), frames + 1
+    return simulation.snapshot(effects=True), frames + 1
 
 
 def frame_iterations(simulation, snapshot, frame: int) -> float | None:
@@ -156,6 +159,7 @@ def frame_seconds(simulation, snapshot, frame: int) -> float:
     """Seconds per substep of one run of ``frame`` (body posing included) from ``snapshot``."""
     from taichi_cloth.physics.metrics import RunRecord
     simulation.restore(snapshot)
+    ti.sync()
     started = time.perf_counter()
     simulation.advance_frame(frame, RunRecord())
     ti.sync()
@@ -164,36 +168,54 @@ def frame_seconds(simulation, snapshot, frame: int) -> float:
 
 def paired_seconds(first, second, snapshot, frame: int, seconds: float) -> tuple[list, list]:
     """Seconds per substep of two simulations on the same frame from the same state
-    (``frame_seconds``), in turns (first, second, first, ...) for at least ``seconds`` and
-    ``MIN_PAIRS`` pairs, after a run of each untimed: each pair ran within a few frames' time,
-    so that a change in the machine's load falls on both alike."""
+    (``frame_seconds``), in pairs for at least ``seconds`` and ``MIN_PAIRS`` pairs, after a run
+    of each untimed: each pair ran within a few frames' time, so that a change in the machine's
+    load falls on both alike, and every other pair runs the second first, so that going first
+    or second favours neither."""
     for simulation in (first, second):
         frame_seconds(simulation, snapshot, frame)
     times = ([], [])
     started = time.perf_counter()
     while len(times[0]) < MIN_PAIRS or time.perf_counter() - started < seconds:
-        for simulation, out in zip((first, second), times):
-            out.append(frame_seconds(simulation, snapshot, frame))
+        order = (0, 1) if len(times[0]) % 2 == 0 else (1, 0)
+        for k in order:
+            times[k].append(frame_seconds((first, second)[k], snapshot, frame))
     return times
+
+
+def median_interval_ranks(count: int, confidence: float = 0.95) -> int:
+    """The largest r such that the r-th and (count + 1 − r)-th smallest of ``count``
+    independent values hold their median with probability ≥ ``confidence``, for any
+    continuous distribution: 1 − 2·P(B ≤ r − 1) with B ~ Binomial(count, ½) (Conover,
+    "Practical Nonparametric Statistics", 3rd ed., §3.2); 1 (the extremes) when even they fall
+    short."""
+    rank, below = 1, 1 / 2 ** count  # below: P(B ≤ rank − 1)
+    while rank < count // 2:
+        below_next = below + math.comb(count, rank) / 2 ** count
+        if 1 - 2 * below_next < confidence:
+            break
+        rank, below = rank + 1, below_next
+    return rank
 
 
 def effect_cost(with_times: list, without_times: list) -> dict:
     """An effect's cost per substep from paired runs [s] (``paired_seconds``): the median of
-    the pairs' differences, with its 95 % confidence interval from their order statistics
-    (distribution-free: the ranks n/2 ∓ 0.98·√n of the sorted differences; Conover,
-    "Practical Nonparametric Statistics", 3rd ed., §3.2). Where the interval reaches 0 or
-    below, the cost is not told from the noise and is reported as at most the interval's upper
-    end (``noise_us_per_substep``, never below 0) instead: a cost is never negative."""
+    the pairs' differences, with a confidence interval of at least 95 % from their order
+    statistics (``median_interval_ranks``, distribution-free). A cost is never negative:
+    where the interval holds 0 the cost is not told from the noise (``below_noise``) and only
+    the interval's upper end is given (``noise_us_per_substep``); where it lies below 0 the
+    scene is faster with the effect (``faster_with_effect``: its frame ran another way, or
+    compiled to other code) and the cost is none."""
     differences = sorted(w - o for w, o in zip(with_times, without_times))
     count = len(differences)
-    rank = max(1, math.floor(count / 2 - 0.98 * math.sqrt(count)))
+    rank = median_interval_ranks(count)
     low, high = differences[rank - 1], differences[count - rank]
-    below_noise = low <= 0
-    return {"cost_us_per_substep": None if below_noise
-            else round(1e6 * statistics.median(differences), 3),
+    has_cost = low > 0
+    return {"cost_us_per_substep": round(1e6 * statistics.median(differences), 3)
+            if has_cost else None,
             "noise_us_per_substep": round(1e6 * max(high, 0.0), 3),
             "interval_us_per_substep": [round(1e6 * low, 3), round(1e6 * high, 3)],
-            "below_noise": below_noise}
+            "below_noise": low <= 0 <= high, "faster_with_effect": high < 0}
 
 
 def bench_effects(scene_name: str, seconds: float, repeats: int) -> Iterator[dict]:
@@ -239,7 +261,7 @@ def bench_effects(scene_name: str, seconds: float, repeats: int) -> Iterator[dic
         with_times, without_times = (base_times, other_times) if declared \
             else (other_times, base_times)
         cost = effect_cost(with_times, without_times)
-        per_particle = None if cost["below_noise"] else \
+        per_particle = None if cost["cost_us_per_substep"] is None else \
             round(1e3 * cost["cost_us_per_substep"] / particles, 3)
         yield substep_row("effect", integrator, size, particles,
                           [1.0 / t for t in other_times], scene=scene_name, effect=name,
