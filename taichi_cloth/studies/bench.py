@@ -13,8 +13,8 @@ compiles the kernels (compile time excluded); the table shows the median repeat.
 tests use it as the oracle of the force kernel. The scene parts are in ``studies/bench_scene.py``.
 
 Real scenes (``--scene``, a comma list; by default ``REAL_SCENES``): each with every integrator
-(its own at the scene's step, the others at their auto step: particle-substeps per second and
-wall seconds per simulated second), and its whole run as ``simulate`` does it (start-up,
+(its own at the scene's step, the others at their auto step, all from the state the scene
+settles into: particle-substeps per second and wall seconds per simulated second), and its whole run as ``simulate`` does it (start-up,
 compile and settling timed apart); for ``hula`` (or every scene named with ``--scene``) also
 the cost of each effect, from the scene with and without it measured in turns on the same
 frame from the same settled state, backward Euler's CG held at the same iterations a step (an
