@@ -135,15 +135,13 @@ def settled_start(simulation):
 
 
 def frame_iterations(simulation, snapshot, frame: int) -> float | None:
-    """CG iterations a step of ``frame`` from ``snapshot`` at the scene's tolerance, on the
-    mean (None for an integrator without a solve)."""
-    from taichi_cloth.physics.metrics import RunRecord
+    """CG iterations a step of one run of ``frame`` from ``snapshot`` (``frame_seconds``) at
+    the integrator's tolerance, on the mean (None for an integrator without a solve)."""
     integrator = simulation.integrator
     if not integrator.uses_jacobian:
         return None
-    simulation.restore(snapshot)
     integrator.take_iterations()
-    simulation.advance_frame(frame, RunRecord())
+    frame_seconds(simulation, snapshot, frame)
     return statistics.mean(integrator.take_iterations())
 
 
