@@ -2,7 +2,9 @@
 them but the effects: the same motion to float32 rounding, on a periodic grid with dashpots
 (halo columns). The whole step in SIMD lanes (``steps_in_lanes``: the packed state unpacked at
 the end of a launch) with gravity only, and with curvature bending (a linear stencil in the SIMD
-pass) and air drag (faces in the SIMD pass) together; drag also on an open grid whose width is
+pass) and air drag (faces in the SIMD pass) together; with gusty wind as well, an effect the
+particles gather (``gathers_for_lanes``: the state unpacked, the wind's faces made and each
+particle's force packed into lanes every substep); drag also on an open grid whose width is
 not a multiple of the lanes ("open-drag"); and the fused loop (a per-particle update, re-packed
 each substep) with a projection pass after every substep. Drag moves the skirt 1.9 mm and a
 falling sheet more over these runs: a pass that lost it would miss the gather by far more than
@@ -20,6 +22,7 @@ from taichi_cloth.studies.bench import REFERENCE_MATERIAL
 from taichi_cloth.effects.bending import Bending, BendingSettings
 from taichi_cloth.effects.drag import Drag, DragSettings
 from taichi_cloth.effects.gravity import Gravity, GravitySettings
+from taichi_cloth.effects.wind import Wind, WindSettings
 from taichi_cloth.cloth.garment import build_garment
 from taichi_cloth.physics.model import Model
 from taichi_cloth.config.tables import ClothConfig
@@ -77,7 +80,9 @@ def run(packed: bool, serial: bool, variant: str):
     seconds to compile."""
     model = model_for(variant)
     effects = [(Gravity, GravitySettings())] + \
-        ([(Drag, DragSettings())] if variant.endswith("drag") else []) + \
+        ([(Drag, DragSettings())] if "drag" in variant else []) + \
+        ([(Wind, WindSettings(strength=4.0, azimuth=30.0, gusts=0.5, gust_frequency=40.0))]
+         if variant.endswith("wind") else []) + \
         ([(Bending, BendingSettings())] if variant.startswith("bending") else [])
     physics = assemble(model, effects, packed, "symplectic",
                        post_step=FloorProjection(model) if variant == "projection" else None)
@@ -88,6 +93,7 @@ def run(packed: bool, serial: bool, variant: str):
     assert physics.forces.has_packed == packed
     integrator = physics.integrator
     assert integrator.steps_in_lanes == (packed and variant != "projection")
+    assert integrator.gathers_for_lanes == (packed and variant.endswith("wind"))
     if packed:  # the effects act in the pass, not gathered
         lanes = [effect.name for effect in physics.forces.packed.lane_effects]
         assert sorted(lanes) == sorted(name for name in ("bending", "drag") if name in variant)
@@ -106,7 +112,8 @@ def start_positions(model: Model) -> np.ndarray:
     return model.garment.positions * np.array([0.9, 1.0, 0.9])
 
 
-@pytest.mark.parametrize("variant", ["gravity", "bending-drag", "open-drag", "projection"])
+@pytest.mark.parametrize("variant", ["gravity", "bending-drag", "bending-drag-wind", "open-drag",
+                                     "projection"])
 def test_grid_steps_match_the_gather(variant):
     model = model_for(variant)
     x_gather, v_gather = run(packed=False, serial=True, variant=variant)
@@ -116,6 +123,9 @@ def test_grid_steps_match_the_gather(variant):
     if variant == "bending-drag":  # they bend the skirt (2.8 cm from gravity's run): the lanes
         # have it
         assert np.abs(x_gather - run(packed=False, serial=True, variant="gravity")[0]).max() > 0.01
+    if variant == "bending-drag-wind":  # the wind moves it too
+        wind_moved = np.abs(x_gather - run(packed=False, serial=True, variant="bending-drag")[0])
+        assert wind_moved.max() > 1e-3
     waist_end = waist(model) + [WAIST_SPEED * RUN_SECONDS, 0, 0]
     np.testing.assert_allclose(x_gather[model.garment.pinned], waist_end, atol=1e-5)  # pins
     x, v = run(packed=True, serial=True, variant=variant)

@@ -187,6 +187,13 @@ class Forces:
             f = self.packed.spring_force(i_p)
         else:
             f = self.spring_force(x, v, i_p)
+        return f + self.gathered_force(x, v, i_p, t)
+
+    @ti.func
+    def gathered_force(self, x, v, i_p, t):
+        """The force on particle i_p [N] of the effects it gathers (``gathered_effects``: all
+        but the springs and the effects acting in the packed pass), after ``prepare_effects``."""
+        f = ti.Vector.zero(self.model.real, 3)
         for e in ti.static(range(len(self.gathered_effects))):
             f += self.gathered_effects[e].force(self.model, x, v, i_p, t)
         return f

@@ -59,11 +59,13 @@ def group_pass_function(packed, finish):
 
     the module docstring's formula with n = d/l; a slot off the grid (or a zero-length spring)
     adds nothing. Each lane sums its own slots in slot order (a gather), then the stencil effects'
-    (``Effect.allocate_lanes``), linear stencils: f −= C_s·[(x_j − x_i) + β·(v_j − v_i)] with
-    the effect's coefficient C_s of the lane and slot (0 where there is none) and its β, in this
-    loop, not in an inlined function of the effect's (a run-time loop in a function inlined into
-    a real function crashed Taichi 1.7.4); then the face effects' thirds of the particle's six
-    faces, read from ``face_force`` (``PackedGrid.face_pass``, run before). A real function is
+    (``Effect.allocate_lanes``), linear stencils: f −= C_s·(y_j − y_i) with the effect's
+    coefficient C_s of the lane and slot (0 where there is none) and y = x + β·v with its
+    dashpot's β [s] (``PackedGrid.damped_x``: one shifted read a slot instead of two), or y = x
+    without dashpots, in this loop, not in an inlined function of the effect's (a run-time loop
+    in a function inlined into a real function crashed Taichi 1.7.4); then the face effects'
+    thirds of the particle's six faces, read from ``face_force`` (both made before the pass by
+    ``PackedGrid.lane_inputs``). A real function is
     compiled once per kernel however many substeps call it (inlined, its thousands of lane
     operations made compiles take seconds per call). The slots of a column run are unrolled
     (``ti.static``): as a run-time loop of 2-4 slots, LLVM's loop vectorizer vectorised it across
@@ -73,6 +75,9 @@ def group_pass_function(packed, finish):
     model = packed.model
     packed_x, packed_v = packed.packed_x, packed.packed_v
     stencil_effects, face_force = packed.stencil_effects, packed.face_force
+    # what each stencil effect reads: y = x + β·v where it has a dashpot (``damped_x``, one
+    # copy), else x (packed copy ``buffer``), as (fields, whether the copy is ``buffer``)
+    stencil_sources = [(damped, 0) if damped else (packed_x, 1) for damped in packed.damped_x]
     grid, real = model.grid, model.real
     has_dashpots = model.has_dashpots
     lane_index = ti.Vector(list(range(SIMD_LANES)))
@@ -107,7 +112,10 @@ def group_pass_function(packed, finish):
                     magnitude = ti.select(present_column & (length_sq > 0), magnitude, 0.0)
                     for c in ti.static(range(3)):
                         force[c] += magnitude * d[c]
-        for effect in ti.static(stencil_effects):  # linear stencils (``Effect`` protocol)
+        for e, effect in ti.static(enumerate(stencil_effects)):  # linear stencils
+            source, in_buffer = ti.static(stencil_sources[e])
+            copy = buffer * in_buffer
+            y_i = [packed_lanes(source[c], copy, row, group, 0) for c in ti.static(range(3))]
             for run in ti.static(effect.lane_column_runs):
                 column_step, first_slot, slot_count = ti.static(run)
                 for s in ti.static(range(first_slot, first_slot + slot_count)):
@@ -115,13 +123,8 @@ def group_pass_function(packed, finish):
                     if 0 <= neighbor_row < grid.rows:
                         coefficient = effect.lane_coefficient[row, group, s]
                         for c in ti.static(range(3)):
-                            relative = packed_lanes(packed_x[c], buffer, neighbor_row, group,
-                                                    column_step) - x_i[c]
-                            if ti.static(has_dashpots and effect.lane_damping != 0.0):
-                                relative += real(effect.lane_damping) * (
-                                    packed_lanes(packed_v[c], buffer, neighbor_row, group,
-                                                 column_step) - v_i[c])
-                            force[c] -= coefficient * relative
+                            force[c] -= coefficient * (packed_lanes(
+                                source[c], copy, neighbor_row, group, column_step) - y_i[c])
         for faces in ti.static(face_force):  # the thirds of the particle's six faces
             for c in ti.static(range(3)):
                 # quad (row, column): both faces; (row, column − 1): the second; (row − 1,
@@ -207,17 +210,21 @@ class PackedGrid:
         # packed copy, so ``packed_lanes`` reads them shifted); never written in the last row
         self.face_force = [[grid.packed_fields(model.real, copies=1) for _ in range(2)]
                            for _ in self.face_effects]
+        # per stencil effect with a dashpot (β ≠ 0 and the scene declares damping): y = x + β·v
+        # of a substep's input (``lane_inputs``), as a packed copy of its own; None without
+        self.damped_x = [grid.packed_fields(model.real, copies=1)
+                         if model.has_dashpots and effect.lane_damping != 0.0 else None
+                         for effect in self.stencil_effects]
         # whole vectors, as the pass computes them: stored lane by lane into [row, column]
         # (x, y, z side by side) LLVM left the whole pass unvectorised (~3x slower)
-        self.packed_force = [ti.Vector.field(SIMD_LANES, model.real, (grid.rows, grid.group_count))
-                             for _ in range(3)]
+        self.packed_force = self.lane_vectors()
         columns = grid.columns
         # (first, last + 1) of the packed groups that hold grid columns
         self.filled_groups = (1, (2 * SIMD_LANES + columns - 1) // SIMD_LANES)
         # groups with a wrapped column in a lane (periodic grid): the first, and from the
         # first with a lane past the last column
-        self.last_own_group = columns // SIMD_LANES  # groups 1 … this hold own columns only
-        self.wrapping_groups = [0] + list(range(self.last_own_group + 1, grid.group_count))
+        last_own_group = columns // SIMD_LANES  # groups 1 … this hold own columns only
+        self.wrapping_groups = [0] + list(range(last_own_group + 1, grid.group_count))
         self.wrapping_group = ti.field(ti.i32, len(self.wrapping_groups))
         # per packed group: the lanes' inverse masses [1/kg] (0 for pinned and halo lanes),
         # and whether a lane is pinned
@@ -229,12 +236,17 @@ class PackedGrid:
             self.quad_faces = quad_faces_function(self)
         self._upload_constants()
 
+    def lane_vectors(self) -> list:
+        """Three fields (x, y, z) of SIMD_LANES-vectors indexed [row, group]: a value per lane."""
+        shape = (self.grid.rows, self.grid.group_count)
+        return [ti.Vector.field(SIMD_LANES, self.model.real, shape) for _ in range(3)]
+
     @ti.func
     def spring_pass(self, x, v):
         """Every particle's spring force (and its lane effects') into ``packed_force``: pack
         (x, v) into packed copy 0, then the SIMD stencil pass."""
         self.pack(x, v, 0, self.needs_velocity)
-        self.face_pass(0)
+        self.lane_inputs(0)
         for row, group in ti.ndrange(self.grid.rows, ti.static(self.filled_groups)):
             self.group_springs(0, row, group, 0.0)
 
@@ -248,6 +260,20 @@ class PackedGrid:
         return triangles.shape == expected.shape and np.array_equal(
             np.unique(np.sort(triangles, axis=1), axis=0),
             np.unique(np.sort(expected, axis=1), axis=0))
+
+    @ti.func
+    def lane_inputs(self, buffer):
+        """What the SIMD pass reads besides the packed state, from packed copy ``buffer``: each
+        damped stencil effect's y = x + β·v (``damped_x``, every group, the halo's too), and the
+        face effects' pressures (``face_pass``)."""
+        for e, effect in ti.static(enumerate(self.stencil_effects)):
+            if ti.static(self.damped_x[e]):
+                beta = self.model.real(effect.lane_damping)
+                for row, group in ti.ndrange(self.grid.rows, self.grid.group_count):
+                    for c in ti.static(range(3)):
+                        self.damped_x[e][c][0, row, group] = self.packed_x[c][buffer, row, group] \
+                            + beta * self.packed_v[c][buffer, row, group]
+        self.face_pass(buffer)
 
     @ti.func
     def face_pass(self, buffer):
@@ -298,24 +324,13 @@ class PackedGrid:
 
     @ti.func
     def pack(self, x, v, buffer, with_velocity: ti.template()):
-        """x (and v, ``with_velocity``) into packed copy ``buffer`` (model.GridStencil)."""
+        """x (and v, ``with_velocity``) into packed copy ``buffer`` (model.GridStencil). Halo
+        lanes hold the wrapped columns of a periodic grid, else the nearest edge column (finite
+        values that the spring pass masks out)."""
         for row, group in ti.ndrange(self.grid.rows, self.grid.group_count):
-            self.pack_group(x, v, buffer, row, group, with_velocity)
-
-    @ti.func
-    def pack_halo(self, x, v, buffer, with_velocity: ti.template()):
-        """The groups of packed copy ``buffer`` that hold wrapped columns (periodic grid)."""
-        for row, k in ti.ndrange(self.grid.rows, ti.static(len(self.wrapping_groups))):
-            self.pack_group(x, v, buffer, row, self.wrapping_group[k], with_velocity)
-
-    @ti.func
-    def pack_group(self, x, v, buffer, row, group, with_velocity: ti.template()):
-        """One group of packed copy ``buffer`` from x (and v). Halo lanes hold the wrapped
-        columns of a periodic grid, else the nearest edge column (finite values that the spring
-        pass masks out)."""
-        self._pack_group(x, self.packed_x, buffer, row, group)
-        if ti.static(with_velocity):
-            self._pack_group(v, self.packed_v, buffer, row, group)
+            self._pack_group(x, self.packed_x, buffer, row, group)
+            if ti.static(with_velocity):
+                self._pack_group(v, self.packed_v, buffer, row, group)
 
     @ti.func
     def _pack_group(self, source, packed: ti.template(), buffer, row, group):
@@ -379,11 +394,16 @@ class PackedGrid:
 
     @ti.func
     def unpack(self, buffer, state):
-        """Packed copy ``buffer`` into ``state`` (x and v)."""
-        grid = self.grid
-        for i_p in range(self.model.particle_count):
-            state.x[i_p], state.v[i_p] = self.load_lane(buffer, i_p // grid.columns,
-                                                        i_p % grid.columns)
+        """Packed copy ``buffer`` into ``state`` (x and v), a group at a time: its vectors loaded
+        whole, then each lane's values stored."""
+        for row, group in ti.ndrange(self.grid.rows, ti.static(self.filled_groups)):
+            first, end = self.group_particles(row, group)
+            x = [self.packed_x[c][buffer, row, group] for c in ti.static(range(3))]
+            v = [self.packed_v[c][buffer, row, group] for c in ti.static(range(3))]
+            for i_p in range(first, end):
+                lane = i_p - first
+                state.x[i_p] = ti.Vector([x[c][lane] for c in ti.static(range(3))])
+                state.v[i_p] = ti.Vector([v[c][lane] for c in ti.static(range(3))])
 
 
 def packed_grid_for(model, wanted: bool, effects=()) -> PackedGrid | None:

@@ -16,38 +16,46 @@ A substep takes one of three paths, chosen at compile time:
 
 - gather: ``Forces.prepare`` then one loop over the particles, each gathering its springs through
   the CSR lists (any cloth);
-- packed: on a packed grid (``forces.packed``, ``physics.packed_grid``) the faces of its face
-  effects (``PackedGrid.face_pass``), then one loop over the packed groups: the SIMD spring
-  pass of a group, the update of its particles (any effects), then their
-  new state packed into the other packed copy (on a periodic grid, the groups holding wrapped
-  columns are packed after the loop, when every column is done). The packed state is carried
-  from substep to substep and packed from the state only once per launch (``begin_launch``), or
-  again after every projection pass (``post_step`` moves particles behind the update's back).
-  One loop per substep instead of three (pack, springs, update) saves two thread-pool hand-offs;
-- lanes: when every force effect is a uniform acceleration (gravity) or acts in the packed pass
-  (bending: ``Effect.allocate_lanes``; drag: ``Effect.lane_faces``) and there is no projection,
-  the update too runs in the SIMD lanes (``lane_step_function``): the packed state is stepped as
-  whole vectors, pins are set afterwards, and x, v are unpacked once at the end of the launch
-  (``end_launch``). docs/performance.md has what each path costs.
+- packed (with a projection after each substep, ``post_step``, which moves particles in the
+  unpacked state): on a packed grid (``forces.packed``, ``physics.packed_grid``) the state
+  packed, the faces of its face effects and the damped stencils' x + β·v
+  (``PackedGrid.lane_inputs``), then one loop over the packed groups: the SIMD spring pass of a
+  group, then the update of its particles (any effects);
+- lanes (a packed grid without a projection): the update too runs in the SIMD lanes
+  (``lane_step_function``): the packed state is stepped as whole vectors, pins are set
+  afterwards, and x, v are unpacked once at the end of the launch (``end_launch``). The forces
+  of the effects that act in the packed pass (bending: ``Effect.allocate_lanes``; drag:
+  ``Effect.lane_faces``) are in the pass; gravity is a uniform acceleration of every free lane;
+  where any other effect is declared (contact, wind: ``gathers_for_lanes``) each substep first
+  unpacks its input state, runs the effects' passes and packs every particle's force of the
+  gathered effects, gravity's included, into lanes that the update adds (on `hula`
+  that is 9 % less a substep than the per-particle update it replaces, which read the pass's
+  vectors lane by lane).
+docs/performance.md has what each path costs.
 """
 
 import taichi as ti
 
 from taichi_cloth.physics.integrators.base import Integrator
+from taichi_cloth.physics.grid_stencil import SIMD_LANES
 from taichi_cloth.physics.packed_grid import group_pass_function
 
 
-def lane_step_function(forces, uses_new_velocity: bool):
+def lane_step_function(forces, uses_new_velocity: bool, gathered_force=None):
     """A ``ti.func`` finishing ``packed_grid.group_pass_function``: step one packed group of lanes
-    from packed copy ``buffer`` into the other with its spring forces f: a = M⁻¹·f + Σ uniform
-    accelerations (free lanes only), v' = v + h·a, x' = x + h·v' (symplectic) or x + h·v
-    (explicit). Pinned and halo lanes have inverse mass 0 and coast (``EulerStep`` sets the pins
-    afterwards; halo lanes are masked out of the spring pass, or refreshed on a periodic grid)."""
+    from packed copy ``buffer`` into the other with its spring forces f: a = M⁻¹·(f + g) with g
+    the gathered effects' forces (``gathered_force``: (x, y, z) fields of SIMD_LANES-vectors
+    [row, group], made per particle before the pass), or a = M⁻¹·f + Σ uniform accelerations
+    (free lanes only) where every gathered effect is one (``gathered_force`` None); then
+    v' = v + h·a, x' = x + h·v' (symplectic) or x + h·v (explicit). Pinned and halo lanes have
+    inverse mass 0 and coast (``EulerStep`` sets the pins afterwards; halo lanes are masked out of
+    the spring pass, or refreshed on a periodic grid)."""
     model = forces.model
     real = model.real
     acceleration = forces.uniform_acceleration
     packed = forces.packed
     packed_x, packed_v, packed_inv_mass = packed.packed_x, packed.packed_v, packed.packed_inv_mass
+    gathers = gathered_force is not None
 
     @ti.func
     def lane_step(buffer, row, group, h, f_x, f_y, f_z):
@@ -56,7 +64,9 @@ def lane_step_function(forces, uses_new_velocity: bool):
         force = (f_x, f_y, f_z)
         for c in ti.static(range(3)):
             lane_acceleration = inv_mass * force[c]
-            if ti.static(acceleration[c] != 0.0):
+            if ti.static(gathers):
+                lane_acceleration += inv_mass * gathered_force[c][row, group]
+            elif ti.static(acceleration[c] != 0.0):
                 lane_acceleration += model.real(acceleration[c]) * free
             v = packed_v[c][buffer, row, group]
             v_new = v + h * lane_acceleration
@@ -81,18 +91,23 @@ class EulerStep(Integrator):
         super().__init__(forces, control, post_step)
         self.packed = forces.packed
         self.has_packed = forces.has_packed
-        # The whole step in SIMD lanes: a packed grid whose gathered force effects are uniform
-        # accelerations (the others act in its pass), and no projection (which moves particles
-        # in the unpacked state).
-        self.steps_in_lanes = self.has_packed \
-            and forces.uniform_acceleration is not None and not self.has_post_step
+        # The whole step in SIMD lanes: a packed grid and no projection (which moves particles
+        # in the unpacked state). Where a gathered force effect is not a uniform acceleration
+        # (contact, wind), the particles gather those effects' forces into packed vectors first
+        # (``gathers_for_lanes``).
+        self.steps_in_lanes = self.has_packed and not self.has_post_step
+        self.gathers_for_lanes = self.steps_in_lanes and forces.uniform_acceleration is None
         self.substeps_write_states = not self.steps_in_lanes
         # 20-40 % faster lanes (runtime.without_taichi_passes); not with face effects, whose
-        # real function the force evaluations' kernels share
-        self.compiles_without_passes = self.steps_in_lanes and not self.packed.face_effects
+        # real function the force evaluations' kernels share, nor with gathered effects
+        # (Taichi 1.7.4 without its passes miscompiled a serial counter: docs/performance.md)
+        self.compiles_without_passes = self.steps_in_lanes and not self.packed.face_effects \
+            and not self.gathers_for_lanes
         if self.steps_in_lanes:
-            self.group_step = group_pass_function(
-                self.packed, lane_step_function(forces, self.uses_new_velocity))
+            # [N]: the gathered effects' forces of a substep, per lane
+            self.gathered_force = self.packed.lane_vectors() if self.gathers_for_lanes else None
+            self.group_step = group_pass_function(self.packed, lane_step_function(
+                forces, self.uses_new_velocity, self.gathered_force))
 
     @ti.func
     def begin_launch(self, state):
@@ -111,7 +126,7 @@ class EulerStep(Integrator):
         (into packed copy 1 − buffer only, when ``steps_in_lanes``: unpacked at the launch's
         end)."""
         if ti.static(self.steps_in_lanes):
-            self._lanes_substep(t, dt, buffer)
+            self._lanes_substep(state_in, t, dt, buffer)
         elif ti.static(self.has_packed):
             self._packed_substep(state_in, state_out, t, dt, buffer)
         else:
@@ -125,12 +140,19 @@ class EulerStep(Integrator):
             self._update(state_in, state_out, i_p, t, dt)
 
     @ti.func
-    def _lanes_substep(self, t, dt, buffer):
-        """``group_step`` for every group, then the pins set to their targets at t + h."""
+    def _lanes_substep(self, state_in, t, dt, buffer):
+        """``group_step`` for every group, then the pins set to their targets at t + h. With
+        ``gathers_for_lanes``, first packed copy ``buffer`` unpacked into state_in, the effects'
+        passes (``Forces.prepare_effects``) and every particle's gathered force into
+        ``gathered_force``."""
         model, packed = self.model, self.packed
         grid = model.grid
         h = ti.cast(dt, model.real)
-        packed.face_pass(buffer)
+        if ti.static(self.gathers_for_lanes):
+            packed.unpack(buffer, state_in)
+            self.forces.prepare_effects(state_in.x, state_in.v, t)
+            self._gather_lanes(state_in, t)
+        packed.lane_inputs(buffer)
         for row, group in ti.ndrange(grid.rows, ti.static(packed.filled_groups)):
             self.group_step(buffer, row, group, h)
             if packed.group_has_pin[row, group]:
@@ -143,25 +165,36 @@ class EulerStep(Integrator):
             packed.refresh_halo(1 - buffer)
 
     @ti.func
+    def _gather_lanes(self, state, t):
+        """Every particle's gathered force (``Forces.gathered_force`` at state, time t [s]) into
+        its lane of ``gathered_force``, a group at a time: its lanes filled in registers, then
+        stored as whole vectors (stored lane by lane into the field, each store waited on the
+        last: ~3x slower). Halo lanes hold 0."""
+        model, packed = self.model, self.packed
+        for row, group in ti.ndrange(model.grid.rows, ti.static(packed.filled_groups)):
+            first, end = packed.group_particles(row, group)
+            lanes = [ti.Vector.zero(model.real, SIMD_LANES) for _ in ti.static(range(3))]
+            for i_p in range(first, end):
+                force = self.forces.gathered_force(state.x, state.v, i_p, ti.cast(t, model.real))
+                for c in ti.static(range(3)):
+                    lanes[c][i_p - first] = force[c]
+            for c in ti.static(range(3)):
+                self.gathered_force[c][row, group] = lanes[c]
+
+    @ti.func
     def _packed_substep(self, state_in, state_out, t, dt, buffer):
-        """The SIMD spring pass and the per-particle update (any effects), group by group."""
+        """The state packed (a projection moved particles since the last substep), the SIMD
+        spring pass and the per-particle update (any effects), group by group."""
         packed = self.packed
         grid = self.model.grid
         self.forces.prepare_effects(state_in.x, state_in.v, t)
-        if ti.static(self.has_post_step):
-            packed.pack(state_in.x, state_in.v, buffer, packed.needs_velocity)
-        packed.face_pass(buffer)
+        packed.pack(state_in.x, state_in.v, buffer, packed.needs_velocity)
+        packed.lane_inputs(buffer)
         for row, group in ti.ndrange(grid.rows, ti.static(packed.filled_groups)):
             packed.group_springs(buffer, row, group, 0.0)
             first, end = packed.group_particles(row, group)
             for i_p in range(first, end):
                 self._update(state_in, state_out, i_p, t, dt)
-            if ti.static(not self.has_post_step):  # else the next substep packs after it
-                if ti.static(not grid.periodic) or group <= packed.last_own_group:
-                    packed.pack_group(state_out.x, state_out.v, 1 - buffer, row, group,
-                                      packed.needs_velocity)
-        if ti.static(grid.periodic and not self.has_post_step):  # wrapped columns: other groups
-            packed.pack_halo(state_out.x, state_out.v, 1 - buffer, packed.needs_velocity)
 
     @ti.func
     def _update(self, state_in, state_out, i_p, t, dt):
