@@ -26,8 +26,9 @@ CFG_OPTIMIZATION_ON_CPU = False
 # kernel, loop-invariant motion, ...) stay as Taichi's default (on): `hula`'s steps are 10-20 %
 # faster with them and its contact pass ~40 %. They take half of a compile, so the test session
 # turns them off through ``TI_ADVANCED_OPTIMIZATION`` (tests/conftest.py; docs/performance.md).
-# A launch whose whole substep runs in SIMD lanes without face effects is compiled without
-# them (``without_taichi_passes``): the gravity-only reference sheet steps 20-40 % faster so.
+# A launch whose whole substep runs in SIMD lanes without face effects or gathered effects
+# (contact, wind) is compiled without them (``without_taichi_passes``): the gravity-only
+# reference sheet steps 20-40 % faster so.
 
 # Taichi's own optimisation level, set here so that ``TI_OPT_LEVEL`` in the environment (which
 # ``ti.init`` reads) cannot change it: at 0 Taichi 1.7.4 compiles a serial loop that reads and

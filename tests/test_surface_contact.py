@@ -208,3 +208,42 @@ def test_the_masks_slack_follows_the_motion_and_the_force_does_not(sheet):
     contact.mask_x.fill(np.inf)  # remade at the next evaluation, doubling the slack again
     np.testing.assert_array_equal(sheet.contact_force(x), force)
     assert contact.mask_stale[None] and contact.mask_slack[None] == pytest.approx(largest)
+
+
+def test_a_remaking_finds_every_capsule_near_each_sample(sheet):
+    """A remaking tests each edge midpoint and centroid only against its first particle's mask
+    grown by ``sample_reach`` (``NearMasks``), or against every capsule where the sample lies
+    farther from that particle (a stretched edge): the masks are those of testing every capsule
+    at every sample, here computed in NumPy, with one particle pulled out of the sheet so far
+    that a sample of its lies past the reach and still near the bar, which its particle's grown
+    mask does not hold."""
+    contact = sheet.contact
+    contact.mask_slack[None] = contact.slack_range[1]  # (a remaking now keeps the most slack)
+    reach = RADIUS + MARGIN + contact.slack_range[1]
+    corners, weights = contact.sample_corners.to_numpy(), contact.sample_weights.to_numpy()
+
+    def bar_distance(points):
+        return np.hypot(points[:, 1] - BAR[0, 1], points[:, 2] - BAR[0, 2])
+
+    def pulled(i, distance):
+        x = sheet.x.copy()
+        x[i] += [0.0, 0.0, distance]
+        points = np.einsum("sa,sak->sk", weights, x[corners])
+        first = x[corners[:, 0]]
+        only_by_all = (np.linalg.norm(points - first, axis=1) > contact.sample_reach) \
+            & (bar_distance(points) < reach) \
+            & (bar_distance(first) > reach + contact.sample_reach)
+        return x, points, only_by_all.any()
+
+    x, points = next((x, points) for i in range(len(sheet.x))
+                     for distance in np.arange(0.3, 1.0, 0.02)
+                     for x, points, found in [pulled(i, distance)] if found)
+    contact.mask_x.fill(np.inf)  # remade at this evaluation
+    sheet.contact_force(x)
+    assert contact.mask_stale[None] and contact.mask_slack[None] == contact.slack_range[1]
+    expected = np.zeros(len(points), np.int64)
+    for bit, (a, b) in enumerate([FAR, BAR, FAR]):
+        inside = capsule_penetration_depths(points, a[None], b[None], np.array([reach])) > 0
+        expected |= inside.astype(np.int64) << bit
+    assert 0 < np.count_nonzero(expected) < len(points)
+    np.testing.assert_array_equal(contact.sample_near.to_numpy(), expected)

@@ -29,7 +29,8 @@ Genesis' ``force_fields.py``). What an effect declares:
   which the Gauss–Seidel sweeps fold into the springs' blocks: ``gather.sweep_rows``), and for
   ``dt = "auto"`` ``rest_stiffness_product(u)`` and ``stiffness_row_sums(n)`` (host NumPy).
 - ``uniform_acceleration``: (a_x, a_y, a_z) [m/s²] when its force is m·a for every free particle
-  (gravity), which lets a grid cloth step in SIMD lanes; None otherwise.
+  (gravity), which a grid cloth's SIMD lanes add without gathering it per particle; None
+  otherwise.
 - ``allocate_lanes(grid)``: on a packed grid cloth (``physics.packed_grid``) an effect whose
   force is a linear stencil on the grid, f_i = −Σ_j C_ij·[(x_j − x_i) + β·(v_j − v_i)] (bending),
   may act inside the SIMD spring pass instead of being gathered per particle: it says whether

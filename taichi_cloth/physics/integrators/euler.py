@@ -100,7 +100,7 @@ class EulerStep(Integrator):
         self.substeps_write_states = not self.steps_in_lanes
         # 20-40 % faster lanes (runtime.without_taichi_passes); not with face effects, whose
         # real function the force evaluations' kernels share, nor with gathered effects
-        # (Taichi 1.7.4 without its passes miscompiled a serial counter: docs/performance.md)
+        # (contact's pass is ~40 % faster with Taichi's passes: docs/performance.md)
         self.compiles_without_passes = self.steps_in_lanes and not self.packed.face_effects \
             and not self.gathers_for_lanes
         if self.steps_in_lanes:
@@ -111,9 +111,8 @@ class EulerStep(Integrator):
 
     @ti.func
     def begin_launch(self, state):
-        if ti.static(self.has_packed):
-            self.packed.pack(state.x, state.v, 0,
-                             ti.static(self.steps_in_lanes or self.packed.needs_velocity))
+        if ti.static(self.steps_in_lanes):  # (the packed path packs at every substep)
+            self.packed.pack(state.x, state.v, 0, True)
 
     @ti.func
     def end_launch(self, state, buffer):
@@ -124,7 +123,8 @@ class EulerStep(Integrator):
     def substep(self, state_in, state_out, t, dt, buffer):
         """One step from state_in (packed copy ``buffer`` on a grid) at t [s] into state_out
         (into packed copy 1 − buffer only, when ``steps_in_lanes``: unpacked at the launch's
-        end)."""
+        end; with ``gathers_for_lanes`` state_in is overwritten with the substep's input, so
+        after a launch the other state holds a substep within it, not the launch's input)."""
         if ti.static(self.steps_in_lanes):
             self._lanes_substep(state_in, t, dt, buffer)
         elif ti.static(self.has_packed):
