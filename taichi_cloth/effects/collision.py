@@ -148,14 +148,21 @@ class CapsuleContact(NearMasks, Effect):
     def prepare(self, x, v, t):
         """Pose every capsule at time t [s] once, before the particle loops: endpoints a, b and
         their velocities from the track (two Hermite evaluations per capsule instead of four per
-        particle and capsule), and the bounding sphere of ``near``; then every sample's contact
-        at (x, v): F_s and (``keeps_blocks``) its blocks, stored and stamped where it touches a
+        particle and capsule), and the bounding sphere of ``near``; then the contact of every
+        sample with a capsule near (``NearMasks.near_sample``; every sample without masks) at
+        (x, v): F_s and (``keeps_blocks``) its blocks, stored and stamped where it touches a
         capsule (elsewhere F_s = 0, not stored: its readers find an older stamp)."""
         self._pose(t)
         if ti.static(self.masked):
             self._refresh_masks(x)
         self.evaluation[None] += 1  # (``NearMasks``)
-        for i_s in range(self.sample_count):
+        listed = self.sample_count
+        if ti.static(self.masked):
+            listed = self.near_count[None]
+        for k in range(listed):
+            i_s = k
+            if ti.static(self.masked):
+                i_s = self.near_sample[k]
             position, mask = self._sample_mask(x, i_s)
             if mask != 0:
                 self._sample_contact(i_s, position, self._sample_point(v, i_s), mask)
