@@ -87,6 +87,21 @@ class GridStencil:
         return [ti.Vector.field(SIMD_LANES, real, (copies, self.rows, self.group_count))
                 for _ in range(3)]
 
+    def lane_fields(self, real) -> list:
+        """Three fields (x, y, z) of SIMD_LANES-vectors indexed [row, group]: a value per lane."""
+        return [ti.Vector.field(SIMD_LANES, real, (self.rows, self.group_count)) for _ in range(3)]
+
+    def halo_sources(self, group: int) -> tuple:
+        """Where each lane of packed group ``group`` of a periodic grid takes its value from:
+        (the groups read, each lane's (index among them, lane)): a wrapped column's own lane,
+        or the lane itself where it holds its own column."""
+        sources = []
+        for lane in range(SIMD_LANES):
+            own = ((group - 1) * SIMD_LANES + lane) % self.columns
+            sources.append((own // SIMD_LANES + 1, own % SIMD_LANES))
+        groups = sorted({source_group for source_group, _ in sources})
+        return groups, [(groups.index(source_group), lane) for source_group, lane in sources]
+
 
 def column_runs(slot_offsets: list) -> list:
     """(column step, first slot, slot count) of each column step of ``slot_offsets``

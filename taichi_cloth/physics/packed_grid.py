@@ -210,6 +210,7 @@ class PackedGrid:
         # packed copy, so ``packed_lanes`` reads them shifted); never written in the last row
         self.face_force = [[grid.packed_fields(model.real, copies=1) for _ in range(2)]
                            for _ in self.face_effects]
+        self.face_triples = [triple for faces in self.face_force for triple in faces]
         # per stencil effect with a dashpot (β ≠ 0 and the scene declares damping): y = x + β·v
         # of a substep's input (``lane_inputs``), as a packed copy of its own; None without
         self.damped_x = [grid.packed_fields(model.real, copies=1)
@@ -217,7 +218,7 @@ class PackedGrid:
                          for effect in self.stencil_effects]
         # whole vectors, as the pass computes them: stored lane by lane into [row, column]
         # (x, y, z side by side) LLVM left the whole pass unvectorised (~3x slower)
-        self.packed_force = self.lane_vectors()
+        self.packed_force = grid.lane_fields(model.real)
         columns = grid.columns
         # (first, last + 1) of the packed groups that hold grid columns
         self.filled_groups = (1, (2 * SIMD_LANES + columns - 1) // SIMD_LANES)
@@ -234,11 +235,6 @@ class PackedGrid:
         if self.face_effects:
             self.quad_faces = quad_faces_function(self)
         self._upload_constants()
-
-    def lane_vectors(self) -> list:
-        """Three fields (x, y, z) of SIMD_LANES-vectors indexed [row, group]: a value per lane."""
-        shape = (self.grid.rows, self.grid.group_count)
-        return [ti.Vector.field(SIMD_LANES, self.model.real, shape) for _ in range(3)]
 
     @ti.func
     def spring_pass(self, x, v):
@@ -279,11 +275,16 @@ class PackedGrid:
         """Each face effect's pressure (``aerodynamics.plate_pressure``, air relative to the face
         from ``Effect.face_air``) on the two triangles of every quad, from packed copy
         ``buffer``, in lanes: its third, times the effect's ``face_factor``, into
-        ``face_force`` [N]; 0 for a quad off the grid (the halo's, on an open grid)."""
+        ``face_force`` [N]; 0 for a quad off the grid (the halo's, on an open grid). The quads
+        of the groups that hold grid columns are computed; the spring pass also reads the last
+        lane of group 0 (the quad left of column 0): 0 on an open grid (never written), on a
+        periodic grid copied from the quad it wraps (``_copy_halo``)."""
         grid = self.grid
         if ti.static(self.face_effects):
-            for row, group in ti.ndrange(grid.rows - 1, (0, ti.static(self.filled_groups[1]))):
+            for row, group in ti.ndrange(grid.rows - 1, ti.static(self.filled_groups)):
                 self.quad_faces(buffer, row, group)
+            if ti.static(grid.periodic):
+                self._copy_halo(self.face_triples, 0, grid.rows - 1, [0])
 
     @ti.func
     def spring_force(self, i_p):
@@ -362,32 +363,29 @@ class PackedGrid:
             self.packed_x[c][buffer, row, group][lane] = x_value[c]
             self.packed_v[c][buffer, row, group][lane] = v_value[c]
 
-    def halo_sources(self, group: int) -> tuple:
-        """Where each lane of packed group ``group`` of a periodic grid takes its value from:
-        (the groups read, each lane's (index among them, lane)): a wrapped column's own lane,
-        or the lane itself where it holds its own column."""
-        columns = self.grid.columns
-        sources = []
-        for lane in range(SIMD_LANES):
-            column = (group - 1) * SIMD_LANES + lane
-            own = column % columns
-            sources.append((own // SIMD_LANES + 1, own % SIMD_LANES))
-        groups = sorted({source_group for source_group, _ in sources})
-        return groups, [(groups.index(source_group), lane) for source_group, lane in sources]
-
     @ti.func
     def refresh_halo(self, buffer):
         """The halo lanes of packed copy ``buffer`` from the own lanes of the columns they copy
         (periodic grid), after a step that updated the packed state in place: each group that
         holds a wrapped column made again whole from the groups its lanes come from
-        (``halo_sources``; lane by lane, each store waiting on the last, took ~8x longer)."""
-        for row in range(self.grid.rows):
-            for group in ti.static(self.wrapping_groups):
-                groups, picks = ti.static(self.halo_sources(group))
-                for fields in ti.static((self.packed_x, self.packed_v)):
+        (``GridStencil.halo_sources``; lane by lane, each store waiting on the last: ~8x
+        longer)."""
+        self._copy_halo([self.packed_x, self.packed_v], buffer, self.grid.rows,
+                        self.wrapping_groups)
+
+    @ti.func
+    def _copy_halo(self, fields: ti.template(), copy, rows: ti.template(),
+                   groups: ti.template()):
+        """Packed copy ``copy`` of each (x, y, z) field triple in ``fields``: the ``groups``
+        (wrapping groups of a periodic grid) of its first ``rows`` rows made again whole from the
+        own lanes their lanes copy (``GridStencil.halo_sources``)."""
+        for row in range(rows):
+            for group in ti.static(groups):
+                sources, picks = ti.static(self.grid.halo_sources(group))
+                for triple in ti.static(fields):
                     for c in ti.static(range(3)):
-                        loaded = [fields[c][buffer, row, source] for source in ti.static(groups)]
-                        fields[c][buffer, row, group] = ti.Vector(
+                        loaded = [triple[c][copy, row, source] for source in ti.static(sources)]
+                        triple[c][copy, row, group] = ti.Vector(
                             [loaded[ti.static(picks[lane][0])][ti.static(picks[lane][1])]
                              for lane in ti.static(range(SIMD_LANES))])
 

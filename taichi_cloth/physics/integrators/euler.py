@@ -105,7 +105,8 @@ class EulerStep(Integrator):
             and not self.gathers_for_lanes
         if self.steps_in_lanes:
             # [N]: the gathered effects' forces of a substep, per lane
-            self.gathered_force = self.packed.lane_vectors() if self.gathers_for_lanes else None
+            self.gathered_force = self.model.grid.lane_fields(self.model.real) \
+                if self.gathers_for_lanes else None
             self.group_step = group_pass_function(self.packed, lane_step_function(
                 forces, self.uses_new_velocity, self.gathered_force))
 
