@@ -5,8 +5,11 @@ them but the effects: the same motion to float32 rounding, on a periodic grid wi
 with curvature bending (a linear stencil in the SIMD pass) and air drag (faces in the SIMD
 pass) together; with gusty wind as well, an effect the particles gather (``gathers_for_lanes``:
 the state unpacked, the wind's faces made and each particle's force packed into lanes every
-substep), serial and parallel; drag and wind also on an open grid whose width is not a
-multiple of the lanes ("open-drag-wind"); and the per-particle update (packed each substep)
+substep), serial and parallel; with capsule contact instead of wind, an effect that lists the
+particles it acts on (``gathers_listed``: only positions unpacked, the velocities read from
+the lanes, only the touched particles' forces packed), serial and parallel; drag and wind also
+on an open grid whose width is not a multiple of the lanes ("open-drag-wind"); and the
+per-particle update (packed each substep)
 with a projection pass after every substep. Drag moves the skirt 1.9 mm and a falling sheet
 more over these runs: a pass that lost it would miss the gather by far more than the
 tolerance."""
@@ -21,6 +24,7 @@ from systems import assemble
 
 from taichi_cloth.studies.bench import REFERENCE_MATERIAL
 from taichi_cloth.effects.bending import Bending, BendingSettings
+from taichi_cloth.effects.collision import CapsuleContact, CollisionSettings
 from taichi_cloth.effects.drag import Drag, DragSettings
 from taichi_cloth.effects.gravity import Gravity, GravitySettings
 from taichi_cloth.effects.wind import Wind, WindSettings
@@ -32,6 +36,10 @@ FLOOR_Y = 0.55  # m: the projection below holds the hem above it
 STEPS, DT = 120, 5e-4  # substeps of the runs, and their length [s]
 RUN_SECONDS = STEPS * DT
 WAIST_SPEED = 0.2  # m/s
+# a leg inside the skirt, 1 cm from its hem (its margin 5 mm): the swinging hem meets it, until
+# the leg jumps away halfway, leaving particles that it pushed on at once (whose lanes must not
+# keep its force)
+LEG, LEG_RADIUS = np.array([[0.29, 0.4, 0.0], [0.29, 0.8, 0.0]]), 0.03  # m
 
 
 @ti.data_oriented
@@ -85,9 +93,13 @@ def run(packed: bool, serial: bool, variant: str):
         ([(Drag, DragSettings())] if "drag" in variant else []) + \
         ([(Wind, WindSettings(strength=4.0, azimuth=30.0, gusts=0.5, gust_frequency=40.0))]
          if variant.endswith("wind") else []) + \
-        ([(Bending, BendingSettings())] if variant.startswith("bending") else [])
+        ([(Bending, BendingSettings())] if variant.startswith("bending") else []) + \
+        ([(CapsuleContact, CollisionSettings())] if variant.endswith("contact") else [])
     physics = assemble(model, effects, packed, "symplectic",
+                       capsule_radius=[LEG_RADIUS] if variant.endswith("contact") else [],
                        post_step=FloorProjection(model) if variant == "projection" else None)
+    if variant.endswith("contact"):
+        physics.control.capsule_track.hold(LEG)
     # the waist ring slides along x at WAIST_SPEED during the run: moving pins
     track = np.stack([waist(model), waist(model) + [WAIST_SPEED * RUN_SECONDS, 0.0, 0.0]])
     physics.control.pin_track.upload(0.0, RUN_SECONDS, track,
@@ -95,7 +107,8 @@ def run(packed: bool, serial: bool, variant: str):
     assert physics.forces.has_packed == packed
     integrator = physics.integrator
     assert integrator.steps_in_lanes == (packed and variant != "projection")
-    assert integrator.gathers_for_lanes == (packed and variant.endswith("wind"))
+    assert integrator.gathers_for_lanes == (packed and variant.endswith(("wind", "contact")))
+    assert integrator.gathers_listed == (packed and variant.endswith("contact"))
     if packed:  # the effects act in the pass, not gathered
         lanes = [effect.name for effect in physics.forces.packed.lane_effects]
         assert sorted(lanes) == sorted(name for name in ("bending", "drag") if name in variant)
@@ -106,7 +119,12 @@ def run(packed: bool, serial: bool, variant: str):
     rng = np.random.default_rng(5)
     a.x.from_numpy(start_positions(model).astype(np.float32))
     a.v.from_numpy((0.5 * rng.standard_normal((model.particle_count, 3))).astype(np.float32))
-    newest, _ = integrator.advance(a, b, 0.0, DT, STEPS)
+    if variant.endswith("contact"):
+        a, b = integrator.advance(a, b, 0.0, DT, STEPS // 2)
+        physics.control.capsule_track.hold(LEG + [1.0, 0.0, 0.0])
+        newest, _ = integrator.advance(a, b, STEPS // 2 * DT, DT, STEPS - STEPS // 2)
+    else:
+        newest, _ = integrator.advance(a, b, 0.0, DT, STEPS)
     return newest.x.to_numpy(), newest.v.to_numpy()
 
 
@@ -115,7 +133,7 @@ def start_positions(model: Model) -> np.ndarray:
 
 
 @pytest.mark.parametrize("variant", ["gravity", "bending-drag", "bending-drag-wind",
-                                     "open-drag-wind", "projection"])
+                                     "bending-drag-contact", "open-drag-wind", "projection"])
 def test_grid_steps_match_the_gather(variant):
     model = model_for(variant)
     x_gather, v_gather = run(packed=False, serial=True, variant=variant)
@@ -128,6 +146,9 @@ def test_grid_steps_match_the_gather(variant):
     if variant == "bending-drag-wind":  # the wind moves it too
         wind_moved = np.abs(x_gather - run(packed=False, serial=True, variant="bending-drag")[0])
         assert wind_moved.max() > 1e-3
+    if variant == "bending-drag-contact":  # the leg holds the hem out
+        leg_moved = np.abs(x_gather - run(packed=False, serial=True, variant="bending-drag")[0])
+        assert leg_moved.max() > 1e-3
     waist_end = waist(model) + [WAIST_SPEED * RUN_SECONDS, 0, 0]
     np.testing.assert_allclose(x_gather[model.garment.pinned], waist_end, atol=1e-5)  # pins
     x, v = run(packed=True, serial=True, variant=variant)
@@ -135,7 +156,7 @@ def test_grid_steps_match_the_gather(variant):
     np.testing.assert_allclose(v, v_gather, atol=2e-3 * np.abs(v_gather).max())
 
 
-@pytest.mark.parametrize("variant", ["gravity", "bending-drag-wind"])
+@pytest.mark.parametrize("variant", ["gravity", "bending-drag-wind", "bending-drag-contact"])
 def test_serial_and_parallel_grid_steps_are_bit_identical(variant):
     """Both launch modes gather every particle's springs (and its gathered effects) in the
     same order."""

@@ -31,6 +31,10 @@ Genesis' ``force_fields.py``). What an effect declares:
 - ``uniform_acceleration``: (a_x, a_y, a_z) [m/s²] when its force is m·a for every free particle
   (gravity), which a grid cloth's SIMD lanes add without gathering it per particle; None
   otherwise.
+- ``touched_particles``: (a field of particle indices, a 0-d field of their count) that each
+  ``prepare`` fills with every particle its force may be non-zero on (contact: the particles of
+  the samples touching a capsule), or None when it may act on any; a grid cloth's SIMD lanes
+  then take its force on the listed particles only (``EulerStep``).
 - ``allocate_lanes(grid)``: on a packed grid cloth (``physics.packed_grid``) an effect whose
   force is a linear stencil on the grid, f_i = −Σ_j C_ij·[(x_j − x_i) + β·(v_j − v_i)] (bending),
   may act inside the SIMD spring pass instead of being gathered per particle: it says whether
@@ -93,6 +97,7 @@ class Effect:
     needs_body = False  # the scene must have a [body] section
     arranges_own_passes = False  # ``prepare``'s loops stay as it configures them
     uniform_acceleration = None
+    touched_particles = None
     lane_faces = False
     post_step = None
 

@@ -155,7 +155,7 @@ class CapsuleContact(NearMasks, Effect):
         self._pose(t)
         if ti.static(self.masked):
             self._refresh_masks(x)
-        self.evaluation[None] += 1  # (``NearMasks``)
+        self._begin_marks()  # (``NearMasks``)
         listed = self.sample_count
         if ti.static(self.masked):
             listed = self.near_count[None]

@@ -80,6 +80,11 @@ class NearMasks:
         # passed ``_may_touch``
         self.evaluation = ti.field(ti.i32, ())
         self.touched_in = ti.field(ti.i32, model.particle_count)
+        # the particles marked in this evaluation, each once (in a parallel launch in any
+        # order): every particle the contact force may be non-zero on (``touched_particles``)
+        self.touched_list = ti.field(ti.i32, model.particle_count)
+        self.touched_count = ti.field(ti.i32, ())
+        self.touched_particles = (self.touched_list, self.touched_count)
 
     def mask_uploads(self) -> list:
         """(field, values) for the model's ``uploads``: positions far away, so that the first
@@ -235,8 +240,18 @@ class NearMasks:
         return self.touched_in[i_p] == self.evaluation[None]
 
     @ti.func
+    def _begin_marks(self):
+        """A new evaluation: no particle marked in it yet."""
+        self.evaluation[None] += 1
+        self.touched_count[None] = 0
+
+    @ti.func
     def _mark_touched(self, i_s):
         """Sample i_s touches a capsule at this evaluation: its particles are marked, so that
-        they read their samples' forces (each write is the same value, whichever thread)."""
+        they read their samples' forces, and listed in ``touched_list`` when first marked (the
+        atomic max returns the older mark to one thread only)."""
         for a in ti.static(range(3)):
-            self.touched_in[self.sample_corners[i_s][a]] = self.evaluation[None]
+            i_p = self.sample_corners[i_s][a]
+            if ti.atomic_max(self.touched_in[i_p], self.evaluation[None]) \
+                    != self.evaluation[None]:
+                self.touched_list[ti.atomic_add(self.touched_count[None], 1)] = i_p

@@ -44,6 +44,12 @@ class Forces:
         # acting in the packed pass (which need no pass of their own)
         in_lanes = packed.lane_effects if packed is not None else []
         self.gathered_effects = [e for e in self.force_effects if e not in in_lanes]
+        # of those, the ones that are not a uniform acceleration (contact, wind)
+        self.pointwise_effects = [e for e in self.gathered_effects
+                                  if e.uniform_acceleration is None]
+        # whether each of those lists the particles it acts on (``Effect.touched_particles``)
+        self.pointwise_listed = all(e.touched_particles is not None
+                                    for e in self.pointwise_effects)
         self.prepared_effects = [e for e in effects if e not in in_lanes]
         self.jacobian_effects = [e for e in effects if e.has_jacobian]
         self.coupled_effects = [e for e in effects if e.has_coupled_jacobian]
@@ -56,14 +62,12 @@ class Forces:
         return [e.name for e in self.effects]
 
     @property
-    def uniform_acceleration(self) -> tuple | None:
-        """Σ of the gathered force effects' uniform accelerations [m/s²] (x, y, z) when every
-        one is (gravity; the packed pass has the others), so that a step can add them per SIMD
-        lane; None otherwise."""
-        if any(e.uniform_acceleration is None for e in self.gathered_effects):
-            return None
-        return tuple(sum(e.uniform_acceleration[c] for e in self.gathered_effects)
-                     for c in range(3))
+    def uniform_acceleration(self) -> tuple:
+        """Σ of the uniform accelerations [m/s²] (x, y, z) of the gathered force effects that
+        are one (gravity), which a step can add per SIMD lane (the packed pass has the effects
+        acting in it, ``pointwise_force`` the others)."""
+        return tuple(sum(e.uniform_acceleration[c] for e in self.gathered_effects
+                         if e.uniform_acceleration is not None) for c in range(3))
 
     @ti.func
     def prepare_effects(self, x, v, t):
@@ -196,6 +200,15 @@ class Forces:
         f = ti.Vector.zero(self.model.real, 3)
         for e in ti.static(range(len(self.gathered_effects))):
             f += self.gathered_effects[e].force(self.model, x, v, i_p, t)
+        return f
+
+    @ti.func
+    def pointwise_force(self, x, v, i_p, t):
+        """The force on particle i_p [N] of ``pointwise_effects`` (the gathered effects but the
+        uniform accelerations), after ``prepare_effects``."""
+        f = ti.Vector.zero(self.model.real, 3)
+        for e in ti.static(range(len(self.pointwise_effects))):
+            f += self.pointwise_effects[e].force(self.model, x, v, i_p, t)
         return f
 
     @ti.kernel

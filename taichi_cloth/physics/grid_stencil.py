@@ -1,5 +1,6 @@
-"""A grid cloth's springs as a stencil (part of the constant model), and the host-side layout
-of any stencil on the grid for the SIMD lanes of ``physics.packed_grid``.
+"""A grid cloth's springs as a stencil (part of the constant model), the host-side layout of any
+stencil on the grid for the SIMD lanes of ``physics.packed_grid``, and the lanes' shifted reads
+(``packed_lanes``).
 
 A cloth on a regular grid (sheets and skirts from ``cloth.garment``) has springs that are the same
 few neighbour offsets at every particle, with rest lengths and stiffnesses that depend only on
@@ -14,6 +15,25 @@ import taichi as ti
 SIMD_LANES = 16  # columns per packed group: one AVX-512 register of float32
 STENCIL_REACH = 2  # the farthest neighbour offset a stencil may have, rows or columns
 PACKED_BUFFERS = 2  # packed copies of a state: the one a substep reads, the one it writes
+
+
+def lane_sources(column_step: int) -> tuple:
+    """Where the lanes of a group shifted by ``column_step`` columns come from: (the group
+    offsets read, each lane's (index among them, lane))."""
+    sources = [divmod(lane + column_step, SIMD_LANES) for lane in range(SIMD_LANES)]
+    offsets = sorted({offset for offset, _ in sources})
+    return offsets, [(offsets.index(offset), lane) for offset, lane in sources]
+
+
+@ti.func
+def packed_lanes(packed_component: ti.template(), buffer, row, group,
+                 column_step: ti.template()):
+    """The SIMD_LANES values of packed columns group·SIMD_LANES + lane + column_step (reading
+    only the groups they lie in)."""
+    offsets, picks = ti.static(lane_sources(column_step))
+    groups = [packed_component[buffer, row, group + offset] for offset in ti.static(offsets)]
+    return ti.Vector([groups[ti.static(picks[lane][0])][ti.static(picks[lane][1])]
+                      for lane in ti.static(range(SIMD_LANES))])
 
 
 @ti.data_oriented
@@ -38,7 +58,7 @@ class GridStencil:
         self.slot_count = len(slot_offsets)
         self.column_runs = column_runs(slot_offsets)
         # a halo group before the columns' groups and one after: a group's vector reads reach
-        # into its neighbours (``packed_grid.packed_lanes``, up to STENCIL_REACH ≤ SIMD_LANES)
+        # into its neighbours (``packed_lanes``, up to STENCIL_REACH ≤ SIMD_LANES)
         self.group_count = (columns + SIMD_LANES - 1) // SIMD_LANES + 2
         # every field first, then the copies (see Model.__init__)
         self.slot_row_step = ti.field(ti.i32, self.slot_count)

@@ -21,30 +21,11 @@ import numpy as np
 import taichi as ti
 
 from taichi_cloth.cloth.topology import grid_triangles
-from taichi_cloth.effects.aerodynamics import plate_pressure
-from taichi_cloth.physics.grid_stencil import SIMD_LANES
+from taichi_cloth.physics.grid_stencil import SIMD_LANES, packed_lanes
+from taichi_cloth.physics.packed_faces import quad_faces_function
 from taichi_cloth.runtime import runs_on_cpu
 
 PACKED_PARTICLE_MINIMUM = 1024  # below it the CSR gather is as fast and compiles in a blink
-
-
-def lane_sources(column_step: int) -> tuple:
-    """Where the lanes of a group shifted by ``column_step`` columns come from: (the group
-    offsets read, each lane's (index among them, lane))."""
-    sources = [divmod(lane + column_step, SIMD_LANES) for lane in range(SIMD_LANES)]
-    offsets = sorted({offset for offset, _ in sources})
-    return offsets, [(offsets.index(offset), lane) for offset, lane in sources]
-
-
-@ti.func
-def packed_lanes(packed_component: ti.template(), buffer, row, group,
-                 column_step: ti.template()):
-    """The SIMD_LANES values of packed columns group·SIMD_LANES + lane + column_step (reading
-    only the groups they lie in)."""
-    offsets, picks = ti.static(lane_sources(column_step))
-    groups = [packed_component[buffer, row, group + offset] for offset in ti.static(offsets)]
-    return ti.Vector([groups[ti.static(picks[lane][0])][ti.static(picks[lane][1])]
-                      for lane in ti.static(range(SIMD_LANES))])
 
 
 def group_pass_function(packed, finish):
@@ -139,43 +120,6 @@ def group_pass_function(packed, finish):
         finish(buffer, row, group, h, force[0], force[1], force[2])
 
     return group_pass
-
-
-def quad_faces_function(packed):
-    """A ``ti.real_func`` (buffer, row, group) that computes, in lanes, the pressure of each of
-    ``packed``'s face effects on the two triangles of the quads of rows row, row + 1 and the
-    group's columns c, c + 1 (TL, BL, BR and TL, BR, TR, as ``cloth.topology.grid_triangles``)
-    from packed copy ``buffer``: its third into the effect's ``face_force`` [N] (0 for a quad off
-    an open grid). Real, so that a launch of many substeps compiles it once."""
-    grid, real = packed.grid, packed.model.real
-    packed_x, packed_v = packed.packed_x, packed.packed_v
-    face_effects, face_force = packed.face_effects, packed.face_force
-    corners = ((0, 0), (1, 0), (1, 1), (0, 1))  # TL, BL, BR, TR: (Δrow, Δcolumn)
-    lane_index = ti.Vector(list(range(SIMD_LANES)))
-
-    @ti.real_func
-    def quad_faces(buffer: ti.i32, row: ti.i32, group: ti.i32):
-        x = [[packed_lanes(packed_x[c], buffer, row + corners[k][0], group, corners[k][1])
-              for c in ti.static(range(3))] for k in ti.static(range(4))]
-        v = [[packed_lanes(packed_v[c], buffer, row + corners[k][0], group, corners[k][1])
-              for c in ti.static(range(3))] for k in ti.static(range(4))]
-        column = (group - 1) * SIMD_LANES + lane_index
-        present = column >= -SIMD_LANES  # every lane
-        if ti.static(not grid.periodic):
-            present = (column >= 0) & (column < grid.columns - 1)
-        for e, effect in ti.static(enumerate(face_effects)):
-            for kind in ti.static(range(2)):
-                a, b, c = ti.static(((0, 1, 2), (0, 2, 3))[kind])
-                face_velocity = [(v[a][k] + v[b][k] + v[c][k]) * real(1.0 / 3.0)
-                                 for k in ti.static(range(3))]
-                air = effect.face_air(face_velocity)
-                pressure = plate_pressure([x[b][k] - x[a][k] for k in ti.static(range(3))],
-                                          [x[c][k] - x[a][k] for k in ti.static(range(3))], air)
-                for k in ti.static(range(3)):
-                    face_force[e][kind][k][0, row, group] = ti.select(
-                        present, real(effect.face_factor / 3.0) * pressure[k], 0.0)
-
-    return quad_faces
 
 
 @ti.data_oriented
@@ -290,10 +234,29 @@ class PackedGrid:
     def spring_force(self, i_p):
         """Particle i_p's spring force (and its lane effects') [N] from the last
         ``spring_pass``."""
-        column = i_p % self.grid.columns
-        group, lane = column // SIMD_LANES + 1, column % SIMD_LANES
-        return ti.Vector([self.packed_force[c][i_p // self.grid.columns, group][lane]
-                          for c in ti.static(range(3))])
+        row, group, lane = self.particle_lane(i_p)
+        return ti.Vector([self.packed_force[c][row, group][lane] for c in ti.static(range(3))])
+
+    @ti.func
+    def particle_lane(self, i_p):
+        """(row, group, lane) of particle i_p's own lane."""
+        row, column = i_p // self.grid.columns, i_p % self.grid.columns
+        return row, column // SIMD_LANES + 1, column % SIMD_LANES
+
+    @ti.func
+    def lane_value(self, fields: ti.template(), copy, i_p):
+        """Particle i_p's 3-vector in its lane of packed copy ``copy`` of the (x, y, z)
+        ``fields`` of SIMD_LANES-vectors [copy, row, group]."""
+        row, group, lane = self.particle_lane(i_p)
+        return ti.Vector([fields[c][copy, row, group][lane] for c in ti.static(range(3))])
+
+    @ti.func
+    def store_lane_value(self, fields: ti.template(), i_p, value):
+        """``value`` (3-vector) into particle i_p's lane of the (x, y, z) ``fields`` of
+        SIMD_LANES-vectors [row, group]."""
+        row, group, lane = self.particle_lane(i_p)
+        for c in ti.static(range(3)):
+            fields[c][row, group][lane] = value[c]
 
     @ti.func
     def group_particles(self, row, group):
@@ -356,9 +319,7 @@ class PackedGrid:
     @ti.func
     def store_lane(self, buffer, i_p, x_value, v_value):
         """Particle i_p's (x, v) into its own lane of packed copy ``buffer``."""
-        grid = self.grid
-        row, column = i_p // grid.columns, i_p % grid.columns
-        group, lane = column // SIMD_LANES + 1, column % SIMD_LANES
+        row, group, lane = self.particle_lane(i_p)
         for c in ti.static(range(3)):
             self.packed_x[c][buffer, row, group][lane] = x_value[c]
             self.packed_v[c][buffer, row, group][lane] = v_value[c]
@@ -390,9 +351,9 @@ class PackedGrid:
                              for lane in ti.static(range(SIMD_LANES))])
 
     @ti.func
-    def unpack(self, buffer, state):
-        """Packed copy ``buffer`` into ``state`` (x and v), a group at a time: its vectors loaded
-        whole, then each lane's values stored."""
+    def unpack(self, buffer, state, with_velocity: ti.template()):
+        """Packed copy ``buffer`` into ``state`` (x, and v ``with_velocity``), a group at a
+        time: its vectors loaded whole, then each lane's values stored."""
         for row, group in ti.ndrange(self.grid.rows, ti.static(self.filled_groups)):
             first, end = self.group_particles(row, group)
             x = [self.packed_x[c][buffer, row, group] for c in ti.static(range(3))]
@@ -400,7 +361,22 @@ class PackedGrid:
             for i_p in range(first, end):
                 lane = i_p - first
                 state.x[i_p] = ti.Vector([x[c][lane] for c in ti.static(range(3))])
-                state.v[i_p] = ti.Vector([v[c][lane] for c in ti.static(range(3))])
+                if ti.static(with_velocity):
+                    state.v[i_p] = ti.Vector([v[c][lane] for c in ti.static(range(3))])
+
+
+@ti.data_oriented
+class PackedParticles:
+    """Packed copy ``copy`` of a ``PackedGrid``'s (x, y, z) field triple (``packed_x`` or
+    ``packed_v``) read by particle, ``view[i_p]`` a 3-vector, as the effects read x and v: the
+    lanes' state handed to the effects' passes without unpacking it."""
+
+    def __init__(self, packed: PackedGrid, fields, copy):
+        self.packed, self.fields, self.copy = packed, fields, copy
+
+    @ti.func
+    def __getitem__(self, i_p):
+        return self.packed.lane_value(self.fields, self.copy, i_p)
 
 
 def packed_grid_for(model, wanted: bool, effects=()) -> PackedGrid | None:

@@ -27,10 +27,12 @@ A substep takes one of three paths, chosen at compile time:
   of the effects that act in the packed pass (bending: ``Effect.allocate_lanes``; drag:
   ``Effect.lane_faces``) are in the pass; gravity is a uniform acceleration of every free lane;
   where any other effect is declared (contact, wind: ``gathers_for_lanes``) each substep first
-  unpacks its input state, runs the effects' passes and packs every particle's force of the
-  gathered effects, gravity's included, into lanes that the update adds (on `hula`
-  that is 9 % less a substep than the per-particle update it replaces, which read the pass's
-  vectors lane by lane).
+  unpacks its input state, runs the effects' passes and packs every particle's force of those
+  effects into lanes that the update adds. Where each of them lists the particles it acts on
+  (``Effect.touched_particles``: contact, ``gathers_listed``) only the positions are unpacked,
+  the effects read velocities from the lanes (``PackedParticles``), and only the listed
+  particles' lanes are written, then cleared after the step (on `hula` a few dozen of 1,792
+  particles: ~7 µs less a substep).
 docs/performance.md has what each path costs.
 """
 
@@ -38,18 +40,18 @@ import taichi as ti
 
 from taichi_cloth.physics.integrators.base import Integrator
 from taichi_cloth.physics.grid_stencil import SIMD_LANES
-from taichi_cloth.physics.packed_grid import group_pass_function
+from taichi_cloth.physics.packed_grid import PackedParticles, group_pass_function
 
 
 def lane_step_function(forces, uses_new_velocity: bool, gathered_force=None):
     """A ``ti.func`` finishing ``packed_grid.group_pass_function``: step one packed group of lanes
-    from packed copy ``buffer`` into the other with its spring forces f: a = M⁻¹·(f + g) with g
-    the gathered effects' forces (``gathered_force``: (x, y, z) fields of SIMD_LANES-vectors
-    [row, group], made per particle before the pass), or a = M⁻¹·f + Σ uniform accelerations
-    (free lanes only) where every gathered effect is one (``gathered_force`` None); then
-    v' = v + h·a, x' = x + h·v' (symplectic) or x + h·v (explicit). Pinned and halo lanes have
-    inverse mass 0 and coast (``EulerStep`` sets the pins afterwards; halo lanes are masked out of
-    the spring pass, or refreshed on a periodic grid)."""
+    from packed copy ``buffer`` into the other with its spring forces f: a = M⁻¹·(f + g) + Σ
+    uniform accelerations (free lanes only), g the forces of the effects that are not
+    (``gathered_force``: (x, y, z) fields of SIMD_LANES-vectors [row, group], made before the
+    pass; None where there are none); then v' = v + h·a, x' = x + h·v' (symplectic) or x + h·v
+    (explicit). Pinned and halo lanes have inverse mass 0 and coast (``EulerStep`` sets the pins
+    afterwards; halo lanes are masked out of the spring pass, or refreshed on a periodic
+    grid)."""
     model = forces.model
     real = model.real
     acceleration = forces.uniform_acceleration
@@ -66,7 +68,7 @@ def lane_step_function(forces, uses_new_velocity: bool, gathered_force=None):
             lane_acceleration = inv_mass * force[c]
             if ti.static(gathers):
                 lane_acceleration += inv_mass * gathered_force[c][row, group]
-            elif ti.static(acceleration[c] != 0.0):
+            if ti.static(acceleration[c] != 0.0):
                 lane_acceleration += model.real(acceleration[c]) * free
             v = packed_v[c][buffer, row, group]
             v_new = v + h * lane_acceleration
@@ -96,7 +98,9 @@ class EulerStep(Integrator):
         # (contact, wind), the particles gather those effects' forces into packed vectors first
         # (``gathers_for_lanes``).
         self.steps_in_lanes = self.has_packed and not self.has_post_step
-        self.gathers_for_lanes = self.steps_in_lanes and forces.uniform_acceleration is None
+        self.gathers_for_lanes = self.steps_in_lanes and bool(forces.pointwise_effects)
+        # each of those effects lists the particles it acts on: only theirs are gathered
+        self.gathers_listed = self.gathers_for_lanes and forces.pointwise_listed
         self.substeps_write_states = not self.steps_in_lanes
         # 20-40 % faster lanes (runtime.without_taichi_passes); not with face effects, whose
         # real function the force evaluations' kernels share, nor with gathered effects
@@ -118,14 +122,13 @@ class EulerStep(Integrator):
     @ti.func
     def end_launch(self, state, buffer):
         if ti.static(self.steps_in_lanes):
-            self.packed.unpack(buffer, state)
+            self.packed.unpack(buffer, state, True)
 
     @ti.func
     def substep(self, state_in, state_out, t, dt, buffer):
         """One step from state_in (packed copy ``buffer`` on a grid) at t [s] into state_out
         (into packed copy 1 − buffer only, when ``steps_in_lanes``: unpacked at the launch's
-        end; with ``gathers_for_lanes`` state_in is overwritten with the substep's input, so
-        after a launch the other state holds a substep within it, not the launch's input)."""
+        end)."""
         if ti.static(self.steps_in_lanes):
             self._lanes_substep(state_in, t, dt, buffer)
         elif ti.static(self.has_packed):
@@ -143,16 +146,24 @@ class EulerStep(Integrator):
     @ti.func
     def _lanes_substep(self, state_in, t, dt, buffer):
         """``group_step`` for every group, then the pins set to their targets at t + h. With
-        ``gathers_for_lanes``, first packed copy ``buffer`` unpacked into state_in, the effects'
-        passes (``Forces.prepare_effects``) and every particle's gathered force into
-        ``gathered_force``."""
+        ``gathers_for_lanes``, first packed copy ``buffer`` unpacked into state_in, the
+        effects' passes (``Forces.prepare_effects``) and the pointwise effects' forces into
+        ``gathered_force``: of every particle, or with ``gathers_listed`` only of the particles
+        the effects list (their lanes cleared again after the step), whose velocities are then
+        read from the lanes (``PackedParticles``) and only the positions unpacked (every
+        particle's, for contact's masks: ~2 µs against ~4 µs reading them from the lanes on
+        ``hula``, docs/performance.md)."""
         model, packed = self.model, self.packed
         grid = model.grid
         h = ti.cast(dt, model.real)
         if ti.static(self.gathers_for_lanes):
-            packed.unpack(buffer, state_in)
-            self.forces.prepare_effects(state_in.x, state_in.v, t)
-            self._gather_lanes(state_in, t)
+            packed.unpack(buffer, state_in, not self.gathers_listed)
+            x, v = ti.static(self._effects_state(state_in, buffer))
+            self.forces.prepare_effects(x, v, t)
+            if ti.static(self.gathers_listed):
+                self._gather_listed(x, v, t, True)
+            else:
+                self._gather_lanes(x, v, t)
         packed.lane_inputs(buffer)
         for row, group in ti.ndrange(grid.rows, ti.static(packed.filled_groups)):
             self.group_step(buffer, row, group, h)
@@ -164,10 +175,20 @@ class EulerStep(Integrator):
                         packed.store_lane(1 - buffer, i_p, x_pin, v_pin)
         if ti.static(grid.periodic):
             packed.refresh_halo(1 - buffer)
+        if ti.static(self.gathers_listed):
+            self._gather_listed(state_in.x, state_in.v, t, False)
+
+    def _effects_state(self, state_in, buffer) -> list:
+        """(x, v) that the effects read in a lanes substep (at compile time): state_in's fields
+        (unpacked from packed copy ``buffer``), but with ``gathers_listed`` the velocities
+        read from that copy's lanes."""
+        velocities = PackedParticles(self.packed, self.packed.packed_v, buffer) \
+            if self.gathers_listed else state_in.v
+        return [state_in.x, velocities]
 
     @ti.func
-    def _gather_lanes(self, state, t):
-        """Every particle's gathered force (``Forces.gathered_force`` at state, time t [s]) into
+    def _gather_lanes(self, x, v, t):
+        """Every particle's pointwise force (``Forces.pointwise_force`` at x, v, time t [s]) into
         its lane of ``gathered_force``, a group at a time: its lanes filled in registers, then
         stored as whole vectors (stored lane by lane into the field, each store waited on the
         last: ~3x slower). Halo lanes hold 0."""
@@ -176,11 +197,27 @@ class EulerStep(Integrator):
             first, end = packed.group_particles(row, group)
             lanes = [ti.Vector.zero(model.real, SIMD_LANES) for _ in ti.static(range(3))]
             for i_p in range(first, end):
-                force = self.forces.gathered_force(state.x, state.v, i_p, ti.cast(t, model.real))
+                force = self.forces.pointwise_force(x, v, i_p, ti.cast(t, model.real))
                 for c in ti.static(range(3)):
                     lanes[c][i_p - first] = force[c]
             for c in ti.static(range(3)):
                 self.gathered_force[c][row, group] = lanes[c]
+
+    @ti.func
+    def _gather_listed(self, x, v, t, store: ti.template()):
+        """The pointwise force (``Forces.pointwise_force`` at x, v, time t [s]) of each particle
+        that a pointwise effect lists (``Effect.touched_particles``) into its lane of
+        ``gathered_force`` (``store``), or 0 there (the lanes of every other particle hold 0).
+        A particle that two effects list is written twice, the same value."""
+        model = self.model
+        for e in ti.static(self.forces.pointwise_effects):
+            listed, count = ti.static(e.touched_particles)
+            for k in range(count[None]):
+                i_p = listed[k]
+                force = ti.Vector.zero(model.real, 3)
+                if ti.static(store):
+                    force = self.forces.pointwise_force(x, v, i_p, ti.cast(t, model.real))
+                self.packed.store_lane_value(self.gathered_force, i_p, force)
 
     @ti.func
     def _packed_substep(self, state_in, state_out, t, dt, buffer):
