@@ -42,8 +42,8 @@ def group_pass_function(packed, finish):
     adds nothing. Each lane sums its own slots in slot order (a gather), then the stencil effects'
     (``Effect.allocate_lanes``), linear stencils: f −= C_s·(y_j − y_i) with the effect's
     coefficient C_s of the lane and slot (0 where there is none) and y = x + β·v with its
-    dashpot's β [s] (``PackedGrid.damped_x``: one shifted read a slot instead of two), or y = x
-    without dashpots, in this loop, not in an inlined function of the effect's (a run-time loop
+    dashpot's β [s] (``PackedGrid.damped_x``, copy ``buffer``: one shifted read a slot instead
+    of two), or y = x without dashpots, in this loop, not in an inlined function of the effect's (a run-time loop
     in a function inlined into a real function crashed Taichi 1.7.4); then the face effects'
     thirds of the particle's six faces, read from ``face_force`` (both made before the pass by
     ``PackedGrid.lane_inputs``). A real function is
@@ -56,9 +56,8 @@ def group_pass_function(packed, finish):
     model = packed.model
     packed_x, packed_v = packed.packed_x, packed.packed_v
     stencil_effects, face_force = packed.stencil_effects, packed.face_force
-    # what each stencil effect reads: y = x + β·v where it has a dashpot (``damped_x``, one
-    # copy), else x (packed copy ``buffer``), as (fields, whether the copy is ``buffer``)
-    stencil_sources = [(damped, 0) if damped else (packed_x, 1) for damped in packed.damped_x]
+    # what each stencil effect reads: y = x + β·v where it has a dashpot (``damped_x``), else x
+    stencil_sources = [damped or packed_x for damped in packed.damped_x]
     grid, real = model.grid, model.real
     has_dashpots = model.has_dashpots
     lane_index = ti.Vector(list(range(SIMD_LANES)))
@@ -94,9 +93,8 @@ def group_pass_function(packed, finish):
                     for c in ti.static(range(3)):
                         force[c] += magnitude * d[c]
         for e, effect in ti.static(enumerate(stencil_effects)):  # linear stencils
-            source, in_buffer = ti.static(stencil_sources[e])
-            copy = buffer * in_buffer
-            y_i = [packed_lanes(source[c], copy, row, group, 0) for c in ti.static(range(3))]
+            source = ti.static(stencil_sources[e])
+            y_i = [packed_lanes(source[c], buffer, row, group, 0) for c in ti.static(range(3))]
             for run in ti.static(effect.lane_column_runs):
                 column_step, first_slot, slot_count = ti.static(run)
                 for s in ti.static(range(first_slot, first_slot + slot_count)):
@@ -105,7 +103,7 @@ def group_pass_function(packed, finish):
                         coefficient = effect.lane_coefficient[row, group, s]
                         for c in ti.static(range(3)):
                             force[c] -= coefficient * (packed_lanes(
-                                source[c], copy, neighbor_row, group, column_step) - y_i[c])
+                                source[c], buffer, neighbor_row, group, column_step) - y_i[c])
         for faces in ti.static(face_force):  # the thirds of the particle's six faces
             for c in ti.static(range(3)):
                 # quad (row, column): both faces; (row, column − 1): the second; (row − 1,
@@ -156,10 +154,12 @@ class PackedGrid:
                            for _ in self.face_effects]
         self.face_triples = [triple for faces in self.face_force for triple in faces]
         # per stencil effect with a dashpot (β ≠ 0 and the scene declares damping): y = x + β·v
-        # of a substep's input (``lane_inputs``), as a packed copy of its own; None without
-        self.damped_x = [grid.packed_fields(model.real, copies=1)
+        # of each packed copy of the state (``damped``), made with it (``make_damped``; the
+        # lanes' step as it steps them); None without
+        self.damped_x = [grid.packed_fields(model.real)
                          if model.has_dashpots and effect.lane_damping != 0.0 else None
                          for effect in self.stencil_effects]
+        self.damped_triples = [damped for damped in self.damped_x if damped]
         # whole vectors, as the pass computes them: stored lane by lane into [row, column]
         # (x, y, z side by side) LLVM left the whole pass unvectorised (~3x slower)
         self.packed_force = grid.lane_fields(model.real)
@@ -185,7 +185,7 @@ class PackedGrid:
         """Every particle's spring force (and its lane effects') into ``packed_force``: pack
         (x, v) into packed copy 0, then the SIMD stencil pass."""
         self.pack(x, v, 0, self.needs_velocity)
-        self.lane_inputs(0)
+        self.lane_inputs(0, False)
         for row, group in ti.ndrange(self.grid.rows, ti.static(self.filled_groups)):
             self.group_springs(0, row, group, 0.0)
 
@@ -201,18 +201,32 @@ class PackedGrid:
             np.unique(np.sort(expected, axis=1), axis=0))
 
     @ti.func
-    def lane_inputs(self, buffer):
-        """What the SIMD pass reads besides the packed state, from packed copy ``buffer``: each
-        damped stencil effect's y = x + β·v (``damped_x``, every group, the halo's too), and the
-        face effects' pressures (``face_pass``)."""
+    def lane_inputs(self, buffer, damped_made: ti.template()):
+        """What the SIMD pass reads besides packed copy ``buffer`` of the state: its damped
+        stencils' y = x + β·v (``make_damped``, unless ``damped_made``: the lanes' step made
+        them with the state), and the face effects' pressures (``face_pass``)."""
+        if ti.static(not damped_made):
+            self.make_damped(buffer)
+        self.face_pass(buffer)
+
+    @ti.func
+    def make_damped(self, buffer):
+        """Each damped stencil effect's y = x + β·v of packed copy ``buffer`` (``damped``), every
+        group, the halo's too."""
+        for row, group in ti.ndrange(self.grid.rows, self.grid.group_count):
+            for c in ti.static(range(3)):
+                self.store_damped(buffer, row, group, c, self.packed_x[c][buffer, row, group],
+                                  self.packed_v[c][buffer, row, group])
+
+    @ti.func
+    def store_damped(self, buffer, row, group, c: ti.template(), x, v):
+        """Component c of each damped stencil effect's y = x + β·v [m] (``damped_x``) of the
+        lanes of group ``group`` of row ``row`` in packed copy ``buffer`` at positions x [m] and
+        velocities v [m/s] (SIMD_LANES-vectors)."""
         for e, effect in ti.static(enumerate(self.stencil_effects)):
             if ti.static(self.damped_x[e]):
-                beta = self.model.real(effect.lane_damping)
-                for row, group in ti.ndrange(self.grid.rows, self.grid.group_count):
-                    for c in ti.static(range(3)):
-                        self.damped_x[e][c][0, row, group] = self.packed_x[c][buffer, row, group] \
-                            + beta * self.packed_v[c][buffer, row, group]
-        self.face_pass(buffer)
+                self.damped_x[e][c][buffer, row, group] = x + self.model.real(
+                    effect.lane_damping) * v
 
     @ti.func
     def face_pass(self, buffer):
@@ -318,21 +332,26 @@ class PackedGrid:
 
     @ti.func
     def store_lane(self, buffer, i_p, x_value, v_value):
-        """Particle i_p's (x, v) into its own lane of packed copy ``buffer``."""
+        """Particle i_p's (x, v) into its own lane of packed copy ``buffer``, and its damped
+        stencils' y = x + β·v."""
         row, group, lane = self.particle_lane(i_p)
         for c in ti.static(range(3)):
             self.packed_x[c][buffer, row, group][lane] = x_value[c]
             self.packed_v[c][buffer, row, group][lane] = v_value[c]
+            for e, effect in ti.static(enumerate(self.stencil_effects)):
+                if ti.static(self.damped_x[e]):
+                    self.damped_x[e][c][buffer, row, group][lane] = x_value[c] + self.model.real(
+                        effect.lane_damping) * v_value[c]
 
     @ti.func
     def refresh_halo(self, buffer):
-        """The halo lanes of packed copy ``buffer`` from the own lanes of the columns they copy
-        (periodic grid), after a step that updated the packed state in place: each group that
+        """The halo lanes of packed copy ``buffer`` (and of its damped stencils' y) from the own
+        lanes of the columns they copy (periodic grid), after a step that updated the packed state in place: each group that
         holds a wrapped column made again whole from the groups its lanes come from
         (``GridStencil.halo_sources``; lane by lane, each store waiting on the last: ~8x
         longer)."""
-        self._copy_halo([self.packed_x, self.packed_v], buffer, self.grid.rows,
-                        self.wrapping_groups)
+        self._copy_halo([self.packed_x, self.packed_v] + self.damped_triples, buffer,
+                        self.grid.rows, self.wrapping_groups)
 
     @ti.func
     def _copy_halo(self, fields: ti.template(), copy, rows: ti.template(),

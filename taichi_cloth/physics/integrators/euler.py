@@ -49,7 +49,9 @@ def lane_step_function(forces, uses_new_velocity: bool, gathered_force=None):
     uniform accelerations (free lanes only), g the forces of the effects that are not
     (``gathered_force``: (x, y, z) fields of SIMD_LANES-vectors [row, group], made before the
     pass; None where there are none); then v' = v + h·a, x' = x + h·v' (symplectic) or x + h·v
-    (explicit). Pinned and halo lanes have inverse mass 0 and coast (``EulerStep`` sets the pins
+    (explicit), and the damped stencils' y' = x' + β·v' that the next substep's pass reads
+    (``PackedGrid.store_damped``: no pass of its own over the state, ~3 µs a substep on
+    `hula`). Pinned and halo lanes have inverse mass 0 and coast (``EulerStep`` sets the pins
     afterwards; halo lanes are masked out of the spring pass, or refreshed on a periodic
     grid)."""
     model = forces.model
@@ -72,11 +74,13 @@ def lane_step_function(forces, uses_new_velocity: bool, gathered_force=None):
                 lane_acceleration += model.real(acceleration[c]) * free
             v = packed_v[c][buffer, row, group]
             v_new = v + h * lane_acceleration
-            packed_v[c][1 - buffer, row, group] = v_new
+            moving = v
             if ti.static(uses_new_velocity):
-                packed_x[c][1 - buffer, row, group] = packed_x[c][buffer, row, group] + h * v_new
-            else:
-                packed_x[c][1 - buffer, row, group] = packed_x[c][buffer, row, group] + h * v
+                moving = v_new
+            x_new = packed_x[c][buffer, row, group] + h * moving
+            packed_v[c][1 - buffer, row, group] = v_new
+            packed_x[c][1 - buffer, row, group] = x_new
+            packed.store_damped(1 - buffer, row, group, c, x_new, v_new)
 
     return lane_step
 
@@ -118,6 +122,7 @@ class EulerStep(Integrator):
     def begin_launch(self, state):
         if ti.static(self.steps_in_lanes):  # (the packed path packs at every substep)
             self.packed.pack(state.x, state.v, 0, True)
+            self.packed.make_damped(0)
 
     @ti.func
     def end_launch(self, state, buffer):
@@ -164,7 +169,7 @@ class EulerStep(Integrator):
                 self._gather_listed(x, v, t, True)
             else:
                 self._gather_lanes(x, v, t)
-        packed.lane_inputs(buffer)
+        packed.lane_inputs(buffer, True)
         for row, group in ti.ndrange(grid.rows, ti.static(packed.filled_groups)):
             self.group_step(buffer, row, group, h)
             if packed.group_has_pin[row, group]:
@@ -227,7 +232,7 @@ class EulerStep(Integrator):
         grid = self.model.grid
         self.forces.prepare_effects(state_in.x, state_in.v, t)
         packed.pack(state_in.x, state_in.v, buffer, packed.needs_velocity)
-        packed.lane_inputs(buffer)
+        packed.lane_inputs(buffer, False)
         for row, group in ti.ndrange(grid.rows, ti.static(packed.filled_groups)):
             packed.group_springs(buffer, row, group, 0.0)
             first, end = packed.group_particles(row, group)
