@@ -239,8 +239,8 @@ class PackedGrid:
         periodic grid copied from the quad it wraps (``_copy_halo``)."""
         grid = self.grid
         if ti.static(self.face_effects):
-            for row, group in ti.ndrange(grid.rows - 1, ti.static(self.filled_groups)):
-                self.quad_faces(buffer, row, group)
+            for row in range(grid.rows - 1):
+                self.quad_faces(buffer, row)
             if ti.static(grid.periodic):
                 self._copy_halo(self.face_triples, 0, grid.rows - 1, [0])
 
