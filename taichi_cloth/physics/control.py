@@ -57,19 +57,31 @@ class KinematicTrack:
     @ti.func
     def at(self, i_k, t):
         """Position [m] and velocity [m/s] of point i_k at time t [s]."""
+        k, weights, delta = self.basis(t)
+        return self.blend(i_k, k, weights, delta)
+
+    @ti.func
+    def basis(self, t):
+        """What ``at`` takes of time t [s], the same for every point: (the sample k before it,
+        the weights (h00, h10, h01, h11, h00', h10', h01', h11') at s (module docstring), Δ [s])."""
         span = ti.cast(self.sample_count - 1, ti.f64)
         s_total = ti.min(ti.max((ti.cast(t, ti.f64) - self.timing[0]) / self.timing[1], 0.0),
                          span)
         k = ti.min(ti.cast(ti.floor(s_total), ti.i32), self.sample_count - 2)
         s = ti.cast(s_total - k, self.real)
-        delta = ti.cast(self.timing[1], self.real)
+        s2, s3 = s * s, s * s * s
+        weights = ti.Vector([2 * s3 - 3 * s2 + 1, s3 - 2 * s2 + s, 3 * s2 - 2 * s3, s3 - s2,
+                             6 * s2 - 6 * s, 3 * s2 - 4 * s + 1, 6 * s - 6 * s2, 3 * s2 - 2 * s])
+        return k, weights, ti.cast(self.timing[1], self.real)
+
+    @ti.func
+    def blend(self, i_k, k, weights, delta):
+        """Position [m] and velocity [m/s] of point i_k from the ``basis`` (k, weights, Δ) of a
+        time (computed once for all the points a loop poses)."""
         p0, p1 = self.position[k, i_k], self.position[k + 1, i_k]
         v0, v1 = delta * self.velocity[k, i_k], delta * self.velocity[k + 1, i_k]
-        s2, s3 = s * s, s * s * s
-        position = (2 * s3 - 3 * s2 + 1) * p0 + (s3 - 2 * s2 + s) * v0 \
-            + (3 * s2 - 2 * s3) * p1 + (s3 - s2) * v1
-        slope = (6 * s2 - 6 * s) * p0 + (3 * s2 - 4 * s + 1) * v0 \
-            + (6 * s - 6 * s2) * p1 + (3 * s2 - 2 * s) * v1
+        position = weights[0] * p0 + weights[1] * v0 + weights[2] * p1 + weights[3] * v1
+        slope = weights[4] * p0 + weights[5] * v0 + weights[6] * p1 + weights[7] * v1
         return position, slope / delta
 
 
@@ -118,3 +130,14 @@ class Control:
     def pin_target(self, i_p, t):
         """Position [m] and velocity [m/s] of pinned particle i_p at time t [s]."""
         return self.pin_track.at(self.pin_slot[i_p], t)
+
+    @ti.func
+    def pin_basis(self, t):
+        """The pins' track's ``KinematicTrack.basis`` at time t [s], for ``pin_target_from``."""
+        return self.pin_track.basis(t)
+
+    @ti.func
+    def pin_target_from(self, i_p, k, weights, delta):
+        """``pin_target`` of pinned particle i_p at the time of ``pin_basis`` (k, weights, Δ):
+        a loop over the pins takes the time's weights once."""
+        return self.pin_track.blend(self.pin_slot[i_p], k, weights, delta)

@@ -43,8 +43,9 @@ def group_pass_function(packed, finish):
     (``Effect.allocate_lanes``), linear stencils: f −= C_s·(y_j − y_i) with the effect's
     coefficient C_s of the lane and slot (0 where there is none) and y = x + β·v with its
     dashpot's β [s] (``PackedGrid.damped_x``, copy ``buffer``: one shifted read a slot instead
-    of two), or y = x without dashpots, in this loop, not in an inlined function of the effect's (a run-time loop
-    in a function inlined into a real function crashed Taichi 1.7.4); then the face effects'
+    of two), or y = x without dashpots, in this loop, not in an inlined function of the
+    effect's (a run-time loop in a function inlined into a real function crashed Taichi
+    1.7.4); then the face effects'
     thirds of the particle's six faces, read from ``face_force`` (both made before the pass by
     ``PackedGrid.lane_inputs``). A real function is
     compiled once per kernel however many substeps call it (inlined, its thousands of lane
@@ -346,10 +347,10 @@ class PackedGrid:
     @ti.func
     def refresh_halo(self, buffer):
         """The halo lanes of packed copy ``buffer`` (and of its damped stencils' y) from the own
-        lanes of the columns they copy (periodic grid), after a step that updated the packed state in place: each group that
-        holds a wrapped column made again whole from the groups its lanes come from
-        (``GridStencil.halo_sources``; lane by lane, each store waiting on the last: ~8x
-        longer)."""
+        lanes of the columns they copy (periodic grid), after a step that updated the packed
+        state in place: each group that holds a wrapped column made again whole from the groups
+        its lanes come from (``GridStencil.halo_sources``; lane by lane, each store waiting on
+        the last: ~8x longer)."""
         self._copy_halo([self.packed_x, self.packed_v] + self.damped_triples, buffer,
                         self.grid.rows, self.wrapping_groups)
 

@@ -174,9 +174,12 @@ class EulerStep(Integrator):
             self.group_step(buffer, row, group, h)
             if packed.group_has_pin[row, group]:
                 first, end = packed.group_particles(row, group)
+                # the pins' targets at t + h: the time's weights once for the group's pins (in
+                # the loop, so that serial and parallel launches compute them alike)
+                k, weights, delta = self.control.pin_basis(t + dt)
                 for i_p in range(first, end):
                     if model.particle_inv_mass[i_p] == 0:
-                        x_pin, v_pin = self.control.pin_target(i_p, t + dt)
+                        x_pin, v_pin = self.control.pin_target_from(i_p, k, weights, delta)
                         packed.store_lane(1 - buffer, i_p, x_pin, v_pin)
         if ti.static(grid.periodic):
             packed.refresh_halo(1 - buffer)
