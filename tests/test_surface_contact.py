@@ -13,6 +13,7 @@ from taichi_cloth.cloth.topology import triangle_edges
 from taichi_cloth.config.scene import load_scene
 from taichi_cloth.effects.base import EffectContext
 from taichi_cloth.effects.collision import CapsuleContact, CollisionSettings
+from taichi_cloth.effects.near_masks import EVALUATION_RESTART
 from taichi_cloth.effects.penalty import capsule_penetration_depths
 from taichi_cloth.physics.metrics import surface_samples
 from taichi_cloth.physics.model import Model
@@ -249,3 +250,19 @@ def test_a_remaking_finds_every_capsule_near_each_sample(sheet):
         expected |= inside.astype(np.int64) << bit
     assert 0 < np.count_nonzero(expected) < len(points)
     np.testing.assert_array_equal(contact.sample_near.to_numpy(), expected)
+
+
+def test_the_evaluation_numbers_start_again_and_the_contact_stays(sheet):
+    """After ``EVALUATION_RESTART`` evaluations the particles' marks and the samples' stamps go
+    back to 0 and the numbers start again (an i32 that wrapped would never be the larger of the
+    marks' atomic max): the force is the same bit for bit before, at and after the restart,
+    and each particle a sample of which touches the bar is listed once."""
+    contact = sheet.contact
+    expected = sheet.contact_force(sheet.x)
+    contact.evaluation[None] = EVALUATION_RESTART - 1
+    for _ in range(3):  # the last number before the restart, the restart, the next one
+        np.testing.assert_array_equal(sheet.contact_force(sheet.x), expected)
+    assert contact.evaluation[None] == 2
+    listed = contact.touched_list.to_numpy()[:contact.touched_count[None]]
+    assert len(set(listed.tolist())) == len(listed) > 0
+    assert set(np.flatnonzero(np.abs(expected).sum(axis=1) > 0).tolist()) <= set(listed.tolist())

@@ -34,7 +34,9 @@ Genesis' ``force_fields.py``). What an effect declares:
 - ``touched_particles``: (a field of particle indices, a 0-d field of their count) that each
   ``prepare`` fills with every particle its force may be non-zero on (contact: the particles of
   the samples touching a capsule), or None when it may act on any; a grid cloth's SIMD lanes
-  then take its force on the listed particles only (``EulerStep``).
+  then take its force on the listed particles only (``EulerStep``), and its ``prepare`` and
+  ``force`` get v as a view of the lanes that can only be read by particle, ``v[i]``
+  (``packed_grid.PackedParticles``).
 - ``allocate_lanes(grid)``: on a packed grid cloth (``physics.packed_grid``) an effect whose
   force is a linear stencil on the grid, f_i = −Σ_j C_ij·[(x_j − x_i) + β·(v_j − v_i)] (bending),
   may act inside the SIMD spring pass instead of being gathered per particle: it says whether

@@ -33,13 +33,17 @@ The masks' remaking loops run no iteration while the masks are fresh.
 
 The host class provides ``model``, ``capsule_count``, the posed capsules (``capsule_a``,
 ``capsule_b``, ``capsule_center``, ``capsule_reach_sq``, ``capsule_radius``), ``margin``,
-``_axis_offset``, ``sample_count``, ``sample_corners`` and ``_sample_point``.
+``_axis_offset``, ``sample_count``, ``sample_corners``, ``sample_evaluation`` (each sample's
+stamp: the evaluation that last stored its force) and ``_sample_point``.
 """
 
 import numpy as np
 import taichi as ti
 
 MASK_BITS = 31  # capsules a sample's near-mask can hold (more: every sample tests them all)
+# evaluations after which the marks and stamps start again from 0 (~11 simulated hours of 40 µs
+# substeps), so that the i32 evaluation number never wraps (``_begin_marks``)
+EVALUATION_RESTART = 1 << 30
 MASK_SLACK = (1 / 16, 1 / 2)  # of the longest rest edge: the least and most slack of the masks
 REMADE_AFTER = (16, 64)  # evaluations: masks lasting fewer double the slack, more halve it
 
@@ -241,8 +245,16 @@ class NearMasks:
 
     @ti.func
     def _begin_marks(self):
-        """A new evaluation: no particle marked in it yet."""
-        self.evaluation[None] += 1
+        """A new evaluation: no particle marked in it yet. Every ``EVALUATION_RESTART``
+        evaluations the marks and the samples' stamps go back to 0 and the numbers start again:
+        a wrapped (negative) number would never be the larger of an atomic max, and an old
+        stamp equal to a number used again would read a stale force."""
+        restart = ti.cast(self.evaluation[None] >= EVALUATION_RESTART, ti.i32)
+        for i_p in range(self.model.particle_count * restart):
+            self.touched_in[i_p] = 0
+        for i_s in range(self.sample_count * restart):
+            self.sample_evaluation[i_s] = 0
+        self.evaluation[None] = self.evaluation[None] * (1 - restart) + 1
         self.touched_count[None] = 0
 
     @ti.func

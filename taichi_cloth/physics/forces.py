@@ -44,7 +44,7 @@ class Forces:
         # acting in the packed pass (which need no pass of their own)
         in_lanes = packed.lane_effects if packed is not None else []
         self.gathered_effects = [e for e in self.force_effects if e not in in_lanes]
-        # of those, the ones that are not a uniform acceleration (contact, wind)
+        # of those, the ones that are not a uniform acceleration (contact, wind, the ground...)
         self.pointwise_effects = [e for e in self.gathered_effects
                                   if e.uniform_acceleration is None]
         # whether each of those lists the particles it acts on (``Effect.touched_particles``)

@@ -46,8 +46,9 @@ def group_pass_function(packed, finish):
     of two), or y = x without dashpots, in this loop, not in an inlined function of the
     effect's (a run-time loop in a function inlined into a real function crashed Taichi
     1.7.4); then the face effects'
-    thirds of the particle's six faces, read from ``face_force`` (both made before the pass by
-    ``PackedGrid.lane_inputs``). A real function is
+    thirds of the particle's six faces, read from ``face_force`` (the faces made before the pass
+    by ``PackedGrid.lane_inputs``, and y there too, or in the lanes by the last step, pins and
+    halo copy: ``store_damped``). A real function is
     compiled once per kernel however many substeps call it (inlined, its thousands of lane
     operations made compiles take seconds per call). The slots of a column run are unrolled
     (``ti.static``): as a run-time loop of 2-4 slots, LLVM's loop vectorizer vectorised it across
@@ -155,8 +156,8 @@ class PackedGrid:
                            for _ in self.face_effects]
         self.face_triples = [triple for faces in self.face_force for triple in faces]
         # per stencil effect with a dashpot (β ≠ 0 and the scene declares damping): y = x + β·v
-        # of each packed copy of the state (``damped``), made with it (``make_damped``; the
-        # lanes' step as it steps them); None without
+        # of each packed copy of the state, made with it (``make_damped``; the lanes' step as
+        # it steps them: ``store_damped``); None without
         self.damped_x = [grid.packed_fields(model.real)
                          if model.has_dashpots and effect.lane_damping != 0.0 else None
                          for effect in self.stencil_effects]
@@ -212,12 +213,13 @@ class PackedGrid:
 
     @ti.func
     def make_damped(self, buffer):
-        """Each damped stencil effect's y = x + β·v of packed copy ``buffer`` (``damped``), every
-        group, the halo's too."""
-        for row, group in ti.ndrange(self.grid.rows, self.grid.group_count):
-            for c in ti.static(range(3)):
-                self.store_damped(buffer, row, group, c, self.packed_x[c][buffer, row, group],
-                                  self.packed_v[c][buffer, row, group])
+        """Each damped stencil effect's y = x + β·v of packed copy ``buffer`` (``damped_x``),
+        every group, the halo's too (nothing without one)."""
+        if ti.static(self.damped_triples):
+            for row, group in ti.ndrange(self.grid.rows, self.grid.group_count):
+                for c in ti.static(range(3)):
+                    self.store_damped(buffer, row, group, c, self.packed_x[c][buffer, row, group],
+                                      self.packed_v[c][buffer, row, group])
 
     @ti.func
     def store_damped(self, buffer, row, group, c: ti.template(), x, v):

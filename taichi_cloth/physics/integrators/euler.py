@@ -133,7 +133,9 @@ class EulerStep(Integrator):
     def substep(self, state_in, state_out, t, dt, buffer):
         """One step from state_in (packed copy ``buffer`` on a grid) at t [s] into state_out
         (into packed copy 1 − buffer only, when ``steps_in_lanes``: unpacked at the launch's
-        end)."""
+        end; with ``gathers_for_lanes`` state_in is overwritten with the substep's input
+        positions, and velocities unless ``gathers_listed``, so after a launch the other state
+        holds parts of a substep within it, not the launch's input)."""
         if ti.static(self.steps_in_lanes):
             self._lanes_substep(state_in, t, dt, buffer)
         elif ti.static(self.has_packed):
@@ -166,7 +168,7 @@ class EulerStep(Integrator):
             x, v = ti.static(self._effects_state(state_in, buffer))
             self.forces.prepare_effects(x, v, t)
             if ti.static(self.gathers_listed):
-                self._gather_listed(x, v, t, True)
+                self._gather_listed(x, v, t)
             else:
                 self._gather_lanes(x, v, t)
         packed.lane_inputs(buffer, True)
@@ -184,7 +186,7 @@ class EulerStep(Integrator):
         if ti.static(grid.periodic):
             packed.refresh_halo(1 - buffer)
         if ti.static(self.gathers_listed):
-            self._gather_listed(state_in.x, state_in.v, t, False)
+            self._clear_listed()
 
     def _effects_state(self, state_in, buffer) -> list:
         """(x, v) that the effects read in a lanes substep (at compile time): state_in's fields
@@ -212,20 +214,27 @@ class EulerStep(Integrator):
                 self.gathered_force[c][row, group] = lanes[c]
 
     @ti.func
-    def _gather_listed(self, x, v, t, store: ti.template()):
+    def _gather_listed(self, x, v, t):
         """The pointwise force (``Forces.pointwise_force`` at x, v, time t [s]) of each particle
         that a pointwise effect lists (``Effect.touched_particles``) into its lane of
-        ``gathered_force`` (``store``), or 0 there (the lanes of every other particle hold 0).
-        A particle that two effects list is written twice, the same value."""
+        ``gathered_force`` (the lanes of every other particle hold 0). A particle that two
+        effects list is written twice, the same value."""
         model = self.model
         for e in ti.static(self.forces.pointwise_effects):
             listed, count = ti.static(e.touched_particles)
             for k in range(count[None]):
                 i_p = listed[k]
-                force = ti.Vector.zero(model.real, 3)
-                if ti.static(store):
-                    force = self.forces.pointwise_force(x, v, i_p, ti.cast(t, model.real))
+                force = self.forces.pointwise_force(x, v, i_p, ti.cast(t, model.real))
                 self.packed.store_lane_value(self.gathered_force, i_p, force)
+
+    @ti.func
+    def _clear_listed(self):
+        """The lanes ``_gather_listed`` wrote set to 0 again (the lists are those it read)."""
+        for e in ti.static(self.forces.pointwise_effects):
+            listed, count = ti.static(e.touched_particles)
+            for k in range(count[None]):
+                self.packed.store_lane_value(self.gathered_force, listed[k],
+                                             ti.Vector.zero(self.model.real, 3))
 
     @ti.func
     def _packed_substep(self, state_in, state_out, t, dt, buffer):
