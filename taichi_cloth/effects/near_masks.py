@@ -106,13 +106,16 @@ class NearMasks:
         ti.loop_config(serialize=True)
         for _ in range(1):
             self.mask_stale[None] = 0
+        # an atomic max at every particle, not under a branch: a reduction that Taichi keeps per
+        # thread and LLVM vectorises (the loop alone on ``hula``: 0.7-0.9 µs against 2.1-3.4 µs
+        # branching; in the whole pass, within its noise)
         for i_p in range(self.model.particle_count):
-            if (x[i_p] - self.mask_x[i_p]).norm_sqr() > half_slack_sq:
-                ti.atomic_max(self.mask_stale[None], 1)
+            ti.atomic_max(self.mask_stale[None], ti.cast(
+                (x[i_p] - self.mask_x[i_p]).norm_sqr() > half_slack_sq, ti.i32))
         for i_c in range(self.capsule_count):
-            if (self.capsule_a[i_c] - self.mask_a[i_c]).norm_sqr() > half_slack_sq \
-                    or (self.capsule_b[i_c] - self.mask_b[i_c]).norm_sqr() > half_slack_sq:
-                ti.atomic_max(self.mask_stale[None], 1)
+            ti.atomic_max(self.mask_stale[None], ti.cast(
+                (self.capsule_a[i_c] - self.mask_a[i_c]).norm_sqr() > half_slack_sq
+                or (self.capsule_b[i_c] - self.mask_b[i_c]).norm_sqr() > half_slack_sq, ti.i32))
         ti.loop_config(serialize=True)
         for _ in range(1):
             self._fit_slack()
