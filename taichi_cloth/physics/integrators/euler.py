@@ -158,8 +158,8 @@ class EulerStep(Integrator):
         ``gathered_force``: of every particle, or with ``gathers_listed`` only of the particles
         the effects list (their lanes cleared again after the step), whose velocities are then
         read from the lanes (``PackedParticles``) and only the positions unpacked (every
-        particle's, for contact's masks: ~2 µs against ~4 µs reading them from the lanes on
-        ``hula``, docs/performance.md)."""
+        particle's, for contact's masks: 1.7 µs on ``hula``, where reading them from the lanes
+        made contact's pass ~7 µs longer, docs/performance.md)."""
         model, packed = self.model, self.packed
         grid = model.grid
         h = ti.cast(dt, model.real)
