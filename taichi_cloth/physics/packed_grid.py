@@ -161,7 +161,11 @@ class PackedGrid:
         self.damped_x = [grid.packed_fields(model.real)
                          if model.has_dashpots and effect.lane_damping != 0.0 else None
                          for effect in self.stencil_effects]
-        self.damped_triples = [damped for damped in self.damped_x if damped]
+        # (fields, β [s]) of each damped stencil effect
+        self.damped_stencils = [(damped, effect.lane_damping)
+                                for damped, effect in zip(self.damped_x, self.stencil_effects)
+                                if damped]
+        self.damped_triples = [damped for damped, _ in self.damped_stencils]
         # whole vectors, as the pass computes them: stored lane by lane into [row, column]
         # (x, y, z side by side) LLVM left the whole pass unvectorised (~3x slower)
         self.packed_force = grid.lane_fields(model.real)
@@ -226,10 +230,13 @@ class PackedGrid:
         """Component c of each damped stencil effect's y = x + β·v [m] (``damped_x``) of the
         lanes of group ``group`` of row ``row`` in packed copy ``buffer`` at positions x [m] and
         velocities v [m/s] (SIMD_LANES-vectors)."""
-        for e, effect in ti.static(enumerate(self.stencil_effects)):
-            if ti.static(self.damped_x[e]):
-                self.damped_x[e][c][buffer, row, group] = x + self.model.real(
-                    effect.lane_damping) * v
+        for damped, beta in ti.static(self.damped_stencils):
+            damped[c][buffer, row, group] = self._damped(x, v, beta)
+
+    @ti.func
+    def _damped(self, x, v, beta: ti.template()):
+        """y = x + β·v [m] of positions x [m] and velocities v [m/s] with the dashpot's β [s]."""
+        return x + self.model.real(beta) * v
 
     @ti.func
     def face_pass(self, buffer):
@@ -341,10 +348,8 @@ class PackedGrid:
         for c in ti.static(range(3)):
             self.packed_x[c][buffer, row, group][lane] = x_value[c]
             self.packed_v[c][buffer, row, group][lane] = v_value[c]
-            for e, effect in ti.static(enumerate(self.stencil_effects)):
-                if ti.static(self.damped_x[e]):
-                    self.damped_x[e][c][buffer, row, group][lane] = x_value[c] + self.model.real(
-                        effect.lane_damping) * v_value[c]
+            for damped, beta in ti.static(self.damped_stencils):
+                damped[c][buffer, row, group][lane] = self._damped(x_value[c], v_value[c], beta)
 
     @ti.func
     def refresh_halo(self, buffer):
