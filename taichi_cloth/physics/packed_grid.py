@@ -4,9 +4,9 @@ A cloth on a regular grid has springs that are the same few neighbour offsets at
 particle, with rest lengths and stiffnesses that depend only on the row: a ``GridStencil``
 (``physics.grid_stencil``, part of the constant model). ``PackedGrid`` holds positions (and
 velocities) packed in groups of ``SIMD_LANES`` columns, component by component, and evaluates
-every stencil slot for a whole group with vector arithmetic (``group_pass_function``): the same
-spring formula as the gather (``physics.forces``), each particle still summing its own springs in
-slot order (no atomics), but LLVM turns the lanes into AVX-512 instructions. An effect whose
+the springs for a whole group with vector arithmetic (``physics.packed_pass``): the same spring
+formula as the gather (``physics.forces``), each spring computed once and each particle summing
+its own (no atomics), but LLVM turns the lanes into AVX-512 instructions. An effect whose
 force is a linear stencil on the grid (bending's constant Hessian) can act in the same pass
 (``Effect.allocate_lanes``: its coefficients per lane and slot in a packed table,
 ``GridStencil.packed_table``) instead of being gathered particle by particle afterwards.
@@ -22,104 +22,11 @@ import taichi as ti
 
 from taichi_cloth.cloth.topology import grid_triangles
 from taichi_cloth.physics.grid_stencil import SIMD_LANES, packed_lanes
-from taichi_cloth.physics.packed_faces import quad_faces_function
+from taichi_cloth.physics.packed_pass import forward_pass_function, forward_slots, \
+    group_pass_function
 from taichi_cloth.runtime import runs_on_cpu
 
 PACKED_PARTICLE_MINIMUM = 1024  # below it the CSR gather is as fast and compiles in a blink
-
-
-def group_pass_function(packed, finish):
-    """A ``ti.real_func`` (buffer, row, group, h) that computes the spring (and dashpot) force on
-    the SIMD_LANES particles of one group of ``packed`` (a ``PackedGrid``), packed copy
-    ``buffer``, plus the force of its lane effects, as three SIMD_LANES-vectors (x, y, z),
-    and hands them to ``finish(buffer, row, group, h, f_x, f_y, f_z)``, a ``ti.func``
-    (``PackedGrid`` stores them per particle, ``EulerStep`` steps the lanes with step h [s]).
-    Per spring slot, with d = x_j − x_i and 1/l = 1/√(d·d):
-
-        f += [k·(1 − L/l) + c·((v_j − v_i)·d)/l²]·d,
-
-    the module docstring's formula with n = d/l; a slot off the grid (or a zero-length spring)
-    adds nothing. Each lane sums its own slots in slot order (a gather), then the stencil effects'
-    (``Effect.allocate_lanes``), linear stencils: f −= C_s·(y_j − y_i) with the effect's
-    coefficient C_s of the lane and slot (0 where there is none) and y = x + β·v with its
-    dashpot's β [s] (``PackedGrid.damped_x``, copy ``buffer``: one shifted read a slot instead
-    of two), or y = x without dashpots, in this loop, not in an inlined function of the
-    effect's (a run-time loop in a function inlined into a real function crashed Taichi
-    1.7.4); then the face effects'
-    thirds of the particle's six faces, read from ``face_force`` (the faces made before the pass
-    by ``PackedGrid.lane_inputs``, and y there too, or in the lanes by the last step, pins and
-    halo copy: ``store_damped``). A real function is
-    compiled once per kernel however many substeps call it (inlined, its thousands of lane
-    operations made compiles take seconds per call). The slots of a column run are unrolled
-    (``ti.static``): as a run-time loop of 2-4 slots, LLVM's loop vectorizer vectorised it across
-    the slots, fetching every lane of every slot with a gather (48 gathers a group), and the pass
-    ran 26-40 % slower on an Intel AVX-512 host (docs/performance.md, "The slots unrolled"); the
-    unrolled pass takes ~1.5 s longer to compile from an empty offline cache."""
-    model = packed.model
-    packed_x, packed_v = packed.packed_x, packed.packed_v
-    stencil_effects, face_force = packed.stencil_effects, packed.face_force
-    # what each stencil effect reads: y = x + β·v where it has a dashpot (``damped_x``), else x
-    stencil_sources = [damped or packed_x for damped in packed.damped_x]
-    grid, real = model.grid, model.real
-    has_dashpots = model.has_dashpots
-    lane_index = ti.Vector(list(range(SIMD_LANES)))
-
-    @ti.real_func
-    def group_pass(buffer: ti.i32, row: ti.i32, group: ti.i32, h: real):
-        column = (group - 1) * SIMD_LANES + lane_index
-        x_i = [packed_lanes(packed_x[c], buffer, row, group, 0) for c in ti.static(range(3))]
-        v_i = [packed_lanes(packed_v[c], buffer, row, group, 0) for c in ti.static(range(3))]
-        force = [ti.Vector.zero(real, SIMD_LANES) for _ in ti.static(range(3))]
-        for run in ti.static(grid.column_runs):
-            column_step, first_slot, slot_count = ti.static(run)
-            present_column = column >= 0  # every lane
-            if ti.static(not grid.periodic):
-                present_column = (column + column_step >= 0) & (column + column_step < grid.columns)
-            for s in ti.static(range(first_slot, first_slot + slot_count)):
-                neighbor_row = row + grid.slot_row_step[s]
-                if 0 <= neighbor_row < grid.rows:
-                    d = [packed_lanes(packed_x[c], buffer, neighbor_row, group, column_step)
-                         - x_i[c]
-                         for c in ti.static(range(3))]
-                    length_sq = d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
-                    inv_length = 1.0 / ti.sqrt(length_sq)
-                    magnitude = grid.stiffness[row, s] * (1.0 - grid.rest_length[row, s]
-                                                          * inv_length)
-                    if ti.static(has_dashpots):
-                        along = ti.Vector.zero(real, SIMD_LANES)
-                        for c in ti.static(range(3)):
-                            along += (packed_lanes(packed_v[c], buffer, neighbor_row, group,
-                                                   column_step) - v_i[c]) * d[c]
-                        magnitude += grid.damping[row, s] * along * inv_length * inv_length
-                    magnitude = ti.select(present_column & (length_sq > 0), magnitude, 0.0)
-                    for c in ti.static(range(3)):
-                        force[c] += magnitude * d[c]
-        for e, effect in ti.static(enumerate(stencil_effects)):  # linear stencils
-            source = ti.static(stencil_sources[e])
-            y_i = [packed_lanes(source[c], buffer, row, group, 0) for c in ti.static(range(3))]
-            for run in ti.static(effect.lane_column_runs):
-                column_step, first_slot, slot_count = ti.static(run)
-                for s in ti.static(range(first_slot, first_slot + slot_count)):
-                    neighbor_row = row + effect.lane_row_step[s]
-                    if 0 <= neighbor_row < grid.rows:
-                        coefficient = effect.lane_coefficient[row, group, s]
-                        for c in ti.static(range(3)):
-                            force[c] -= coefficient * (packed_lanes(
-                                source[c], buffer, neighbor_row, group, column_step) - y_i[c])
-        for faces in ti.static(face_force):  # the thirds of the particle's six faces
-            for c in ti.static(range(3)):
-                # quad (row, column): both faces; (row, column − 1): the second; (row − 1,
-                # column): the first; (row − 1, column − 1): both (``PackedGrid.face_pass``)
-                total = faces[0][c][0, row, group] + faces[1][c][0, row, group] \
-                    + packed_lanes(faces[1][c], 0, row, group, -1)
-                if row > 0:
-                    total += packed_lanes(faces[0][c], 0, row - 1, group, 0) \
-                        + packed_lanes(faces[0][c], 0, row - 1, group, -1) \
-                        + packed_lanes(faces[1][c], 0, row - 1, group, -1)
-                force[c] += total
-        finish(buffer, row, group, h, force[0], force[1], force[2])
-
-    return group_pass
 
 
 @ti.data_oriented
@@ -130,9 +37,11 @@ class PackedGrid:
     group] (``GridStencil.packed_fields``); ``packed_force`` [N]: the pass's result, three
     fields of SIMD_LANES-vectors indexed [row, group]; ``packed_inv_mass`` [1/kg] per lane (0
     for pinned and halo lanes) and ``group_has_pin`` per group, for the integrators that step in
-    the lanes; ``lane_effects``: the effects whose forces the pass adds (``group_pass_function``):
-    ``stencil_effects`` (``Effect.allocate_lanes``) and ``face_effects`` (``Effect.lane_faces``,
-    each with its ``face_force``: ``face_pass``).
+    the lanes; ``forward_force`` [N]: per forward slot of the springs (``forward_slots``), the
+    spring's force on its owner lane, (x, y, z) fields indexed [0, row, group] as a packed copy
+    (``packed_lanes`` reads them shifted); ``lane_effects``: the effects whose forces the pass adds
+    (``packed_pass``): ``stencil_effects`` (``Effect.allocate_lanes``) and ``face_effects``
+    (``Effect.lane_faces``, each with its ``face_force``).
     """
 
     def __init__(self, model, effects=()):
@@ -155,6 +64,11 @@ class PackedGrid:
         self.face_force = [[grid.packed_fields(model.real, copies=1) for _ in range(2)]
                            for _ in self.face_effects]
         self.face_triples = [triple for faces in self.face_force for triple in faces]
+        # each spring once, from the end whose slot points forward (``packed_pass``): its force
+        # on that end per forward slot [N], 0 where the slot is off the grid (the halo's too)
+        self.forward_slots = forward_slots(grid.slot_offsets)
+        self.forward_force = [grid.packed_fields(model.real, copies=1)
+                              for _ in self.forward_slots]
         # per stencil effect with a dashpot (β ≠ 0 and the scene declares damping): y = x + β·v
         # of each packed copy of the state, made with it (``make_damped``; the lanes' step as
         # it steps them: ``store_damped``); None without
@@ -176,14 +90,19 @@ class PackedGrid:
         # first with a lane past the last column
         last_own_group = columns // SIMD_LANES  # groups 1 … this hold own columns only
         self.wrapping_groups = [0] + list(range(last_own_group + 1, grid.group_count))
+        # per forward slot, the wrapping groups whose forces the group pass reads (shifted back
+        # by the slot's Δcolumn: group 0's last lane for Δcolumn > 0, the first lanes after the
+        # own columns for Δcolumn < 0)
+        self.forward_halo = [[0] if d_column > 0 else self.wrapping_groups[1:] if d_column < 0
+                             else [] for d_column in
+                             (grid.slot_offsets[s][1] for s in self.forward_slots)]
         # per packed group: the lanes' inverse masses [1/kg] (0 for pinned and halo lanes),
         # and whether a lane is pinned
         self.packed_inv_mass = ti.Vector.field(SIMD_LANES, model.real,
                                                (grid.rows, grid.group_count))
         self.group_has_pin = ti.field(ti.i32, (grid.rows, grid.group_count))
+        self.forward_pass = forward_pass_function(self)
         self.group_springs = group_pass_function(self, self._store_spring_force)
-        if self.face_effects:
-            self.quad_faces = quad_faces_function(self)
         self._upload_constants()
 
     @ti.func
@@ -191,14 +110,14 @@ class PackedGrid:
         """Every particle's spring force (and its lane effects') into ``packed_force``: pack
         (x, v) into packed copy 0, then the SIMD stencil pass."""
         self.pack(x, v, 0, self.needs_velocity)
-        self.lane_inputs(0, False)
+        self.lane_inputs(0, False, self.forward_pass)
         for row, group in ti.ndrange(self.grid.rows, ti.static(self.filled_groups)):
             self.group_springs(0, row, group, 0.0)
 
     def _triangles_are_the_grids(self) -> bool:
         """Whether the cloth's triangles are the grid's (``cloth.topology.grid_triangles``: each
         quad (r, c) split into (r, c), (r + 1, c), (r + 1, c + 1) and (r, c), (r + 1, c + 1),
-        (r, c + 1)), as ``face_pass`` assumes."""
+        (r, c + 1)), as the forward pass's faces assume."""
         grid = self.grid
         expected = grid_triangles(grid.columns, grid.rows, grid.periodic)
         triangles = self.model.garment.triangles
@@ -207,13 +126,23 @@ class PackedGrid:
             np.unique(np.sort(expected, axis=1), axis=0))
 
     @ti.func
-    def lane_inputs(self, buffer, damped_made: ti.template()):
-        """What the SIMD pass reads besides packed copy ``buffer`` of the state: its damped
+    def lane_inputs(self, buffer, damped_made: ti.template(), forward_pass: ti.template()):
+        """What the group pass reads besides packed copy ``buffer`` of the state: its damped
         stencils' y = x + β·v (``make_damped``, unless ``damped_made``: the lanes' step made
-        them with the state), and the face effects' pressures (``face_pass``)."""
+        them with the state), and, from ``forward_pass`` (``packed_pass.forward_pass_function``:
+        the caller's own), the forward springs' forces and the face effects' pressures, every
+        row; on a periodic grid the wrapping groups that the group pass reads then copied from
+        the lanes they wrap (``forward_halo``; the faces: the last lane of group 0). On an open
+        grid those lanes hold 0, never written."""
         if ti.static(not damped_made):
             self.make_damped(buffer)
-        self.face_pass(buffer)
+        for row in range(self.grid.rows):
+            forward_pass(buffer, row)
+        if ti.static(self.grid.periodic):
+            for k in ti.static(range(len(self.forward_slots))):
+                self._copy_halo([self.forward_force[k]], 0, self.grid.rows, self.forward_halo[k])
+            if ti.static(self.face_effects):
+                self._copy_halo(self.face_triples, 0, self.grid.rows - 1, [0])
 
     @ti.func
     def make_damped(self, buffer):
@@ -237,22 +166,6 @@ class PackedGrid:
     def _damped(self, x, v, beta: ti.template()):
         """y = x + β·v [m] of positions x [m] and velocities v [m/s] with the dashpot's β [s]."""
         return x + self.model.real(beta) * v
-
-    @ti.func
-    def face_pass(self, buffer):
-        """Each face effect's pressure (``aerodynamics.plate_pressure``, air relative to the face
-        from ``Effect.face_air``) on the two triangles of every quad, from packed copy
-        ``buffer``, in lanes: its third, times the effect's ``face_factor``, into
-        ``face_force`` [N]; 0 for a quad off the grid (the halo's, on an open grid). The quads
-        of the groups that hold grid columns are computed; the spring pass also reads the last
-        lane of group 0 (the quad left of column 0): 0 on an open grid (never written), on a
-        periodic grid copied from the quad it wraps (``_copy_halo``)."""
-        grid = self.grid
-        if ti.static(self.face_effects):
-            for row in range(grid.rows - 1):
-                self.quad_faces(buffer, row)
-            if ti.static(grid.periodic):
-                self._copy_halo(self.face_triples, 0, grid.rows - 1, [0])
 
     @ti.func
     def spring_force(self, i_p):

@@ -18,9 +18,9 @@ A substep takes one of three paths, chosen at compile time:
   the CSR lists (any cloth);
 - packed (with a projection after each substep, ``post_step``, which moves particles in the
   unpacked state): on a packed grid (``forces.packed``, ``physics.packed_grid``) the state
-  packed, the faces of its face effects and the damped stencils' x + β·v
-  (``PackedGrid.lane_inputs``), then one loop over the packed groups: the SIMD spring pass of a
-  group, then the update of its particles (any effects);
+  packed, the forward pass (each spring's force once, the faces of its face effects) and the
+  damped stencils' x + β·v (``PackedGrid.lane_inputs``), then one loop over the packed groups:
+  the SIMD group pass (``physics.packed_pass``), then the update of its particles (any effects);
 - lanes (a packed grid without a projection): the update too runs in the SIMD lanes
   (``lane_step_function``): the packed state is stepped as whole vectors, pins are set
   afterwards, and x, v are unpacked once at the end of the launch (``end_launch``). The forces
@@ -40,11 +40,12 @@ import taichi as ti
 
 from taichi_cloth.physics.integrators.base import Integrator
 from taichi_cloth.physics.grid_stencil import SIMD_LANES
-from taichi_cloth.physics.packed_grid import PackedParticles, group_pass_function
+from taichi_cloth.physics.packed_grid import PackedParticles
+from taichi_cloth.physics.packed_pass import forward_pass_function, group_pass_function
 
 
 def lane_step_function(forces, uses_new_velocity: bool, gathered_force=None):
-    """A ``ti.func`` finishing ``packed_grid.group_pass_function``: step one packed group of lanes
+    """A ``ti.func`` finishing ``packed_pass.group_pass_function``: step one packed group of lanes
     from packed copy ``buffer`` into the other with its spring forces f: a = M⁻¹·(f + g) + Σ
     uniform accelerations (free lanes only), g the forces of the effects that are not
     (``gathered_force``: (x, y, z) fields of SIMD_LANES-vectors [row, group], made before the
@@ -115,6 +116,8 @@ class EulerStep(Integrator):
             # [N]: the gathered effects' forces of a substep, per lane
             self.gathered_force = self.model.grid.lane_fields(self.model.real) \
                 if self.gathers_for_lanes else None
+            # its own real functions: kernels compiled apart share none (``runtime``)
+            self.forward_pass = forward_pass_function(self.packed)
             self.group_step = group_pass_function(self.packed, lane_step_function(
                 forces, self.uses_new_velocity, self.gathered_force))
 
@@ -171,7 +174,7 @@ class EulerStep(Integrator):
                 self._gather_listed(x, v, t)
             else:
                 self._gather_lanes(x, v, t)
-        packed.lane_inputs(buffer, True)
+        packed.lane_inputs(buffer, True, self.forward_pass)
         for row, group in ti.ndrange(grid.rows, ti.static(packed.filled_groups)):
             self.group_step(buffer, row, group, h)
             if packed.group_has_pin[row, group]:
@@ -244,7 +247,7 @@ class EulerStep(Integrator):
         grid = self.model.grid
         self.forces.prepare_effects(state_in.x, state_in.v, t)
         packed.pack(state_in.x, state_in.v, buffer, packed.needs_velocity)
-        packed.lane_inputs(buffer, False)
+        packed.lane_inputs(buffer, False, packed.forward_pass)
         for row, group in ti.ndrange(grid.rows, ti.static(packed.filled_groups)):
             packed.group_springs(buffer, row, group, 0.0)
             first, end = packed.group_particles(row, group)
