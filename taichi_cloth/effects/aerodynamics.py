@@ -11,15 +11,18 @@ import taichi as ti
 
 
 @ti.func
+def cross_components(a: ti.template(), b: ti.template()):
+    """a × b of two vectors given as their three components (Taichi scalars, or SIMD_LANES-vectors
+    of ``physics.packed_pass``, one triangle per lane), as three components."""
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+
+
+@ti.func
 def unit_normal_and_twice_area(edge_a: ti.template(), edge_b: ti.template()):
     """(n, 2A) of the triangle spanned by edges ``edge_a`` and ``edge_b`` [m], each given as its
     three components: its unit normal n = a × b / |a × b| as three components (0 for a
-    degenerate triangle) and twice its area |a × b| [m²]. On components, so that one formula
-    serves a Taichi vector's components and the SIMD lanes of ``physics.packed_grid``
-    (SIMD_LANES-vectors, one triangle per lane)."""
-    a, b = edge_a, edge_b
-    twice_area_normal = (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2],
-                         a[0] * b[1] - a[1] * b[0])
+    degenerate triangle) and twice its area |a × b| [m²]."""
+    twice_area_normal = cross_components(edge_a, edge_b)
     twice_area = ti.sqrt(twice_area_normal[0] * twice_area_normal[0]
                          + twice_area_normal[1] * twice_area_normal[1]
                          + twice_area_normal[2] * twice_area_normal[2])
@@ -44,10 +47,19 @@ def normal_pressure(n: ti.template(), twice_area, air_velocity: ti.template()):
 def plate_pressure(edge_a: ti.template(), edge_b: ti.template(), air_velocity: ti.template()):
     """The flat plate's pressure on the triangle spanned by edges ``edge_a`` and ``edge_b`` [m]
     from air moving at ``air_velocity`` relative to it [m/s], each given as its three components
-    (x, y, z): the components of A·(u·n)|u·n|·n [m⁴/s²] (``normal_pressure``; 0 for a
-    degenerate triangle), on components as ``unit_normal_and_twice_area``."""
-    n, twice_area = unit_normal_and_twice_area(edge_a, edge_b)
-    return normal_pressure(n, twice_area, air_velocity)
+    (x, y, z): the components of A·(u·n)|u·n|·n [m⁴/s²] (``normal_pressure``), written with
+    N = a × b = 2A·n as ½·(u·N)|u·N|·N / (N·N), which needs no square root (the SIMD lanes of
+    ``physics.packed_pass``: one triangle per lane); 0 for a degenerate triangle."""
+    u = air_velocity
+    twice_area_normal = cross_components(edge_a, edge_b)
+    square = twice_area_normal[0] * twice_area_normal[0] \
+        + twice_area_normal[1] * twice_area_normal[1] \
+        + twice_area_normal[2] * twice_area_normal[2]
+    normal_flux = u[0] * twice_area_normal[0] + u[1] * twice_area_normal[1] \
+        + u[2] * twice_area_normal[2]
+    magnitude = 0.5 * normal_flux * ti.abs(normal_flux) / ti.max(square, 1e-30)
+    return magnitude * twice_area_normal[0], magnitude * twice_area_normal[1], \
+        magnitude * twice_area_normal[2]
 
 
 @ti.func
