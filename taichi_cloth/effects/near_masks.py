@@ -193,17 +193,18 @@ class NearMasks:
     def _next_capsule(self, i_c, mask):
         """The first capsule from i_c on whose bit is set in ``mask`` (with the masks off:
         i_c), or ``capsule_count`` when there is none: a point whose mask is 0 tests no
-        capsule, one with a few bits only those."""
+        capsule, one with a few bits only those. The lowest set bit of mask >> i_c found with
+        a count of leading zeros, no loop over the bits (whose branches the processor guessed
+        wrong: contact's pass on the dancing ``hula`` ~1 µs a substep shorter,
+        docs/performance.md)."""
         found = i_c
         if ti.static(self.masked):
-            while found < self.capsule_count:
-                rest = mask >> found
-                if rest == 0:
-                    found = self.capsule_count
-                elif rest & 1:
-                    break
-                else:
-                    found += 1
+            rest = 0  # (no capsule from bit 31 on: ``MASK_BITS``)
+            if i_c < MASK_BITS:
+                rest = mask >> i_c
+            found = self.capsule_count
+            if rest != 0:
+                found = i_c + 31 - ti.math.clz(rest & -rest)
         return found
 
     @ti.func
