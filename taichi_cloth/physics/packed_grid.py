@@ -131,18 +131,25 @@ class PackedGrid:
         stencils' y = x + β·v (``make_damped``, unless ``damped_made``: the lanes' step made
         them with the state), and, from ``forward_pass`` (``packed_pass.forward_pass_function``:
         the caller's own), the forward springs' forces and the face effects' pressures, every
-        row; on a periodic grid the wrapping groups that the group pass reads then copied from
-        the lanes they wrap (``forward_halo``; the faces: the last lane of group 0). On an open
-        grid those lanes hold 0, never written."""
+        row, then their halo (``copy_forward_halo``)."""
         if ti.static(not damped_made):
             self.make_damped(buffer)
         for row in range(self.grid.rows):
             forward_pass(buffer, row)
+        for row in range(self.grid.rows):
+            self.copy_forward_halo(row)
+
+    @ti.func
+    def copy_forward_halo(self, row):
+        """On a periodic grid, the lanes of row ``row``'s forward forces and faces that the group
+        pass reads outside the own columns copied from the lanes they wrap (``forward_halo``;
+        the faces: the last lane of group 0). On an open grid those lanes hold 0, never
+        written."""
         if ti.static(self.grid.periodic):
             for k in ti.static(range(len(self.forward_slots))):
-                self._copy_halo([self.forward_force[k]], 0, self.grid.rows, self.forward_halo[k])
+                self._copy_halo_row([self.forward_force[k]], 0, row, self.forward_halo[k])
             if ti.static(self.face_effects):
-                self._copy_halo(self.face_triples, 0, self.grid.rows - 1, [0])
+                self._copy_halo_row(self.face_triples, 0, row, [0])
 
     @ti.func
     def make_damped(self, buffer):
@@ -281,14 +288,19 @@ class PackedGrid:
         (wrapping groups of a periodic grid) of its first ``rows`` rows made again whole from the
         own lanes their lanes copy (``GridStencil.halo_sources``)."""
         for row in range(rows):
-            for group in ti.static(groups):
-                sources, picks = ti.static(self.grid.halo_sources(group))
-                for triple in ti.static(fields):
-                    for c in ti.static(range(3)):
-                        loaded = [triple[c][copy, row, source] for source in ti.static(sources)]
-                        triple[c][copy, row, group] = ti.Vector(
-                            [loaded[ti.static(picks[lane][0])][ti.static(picks[lane][1])]
-                             for lane in ti.static(range(SIMD_LANES))])
+            self._copy_halo_row(fields, copy, row, groups)
+
+    @ti.func
+    def _copy_halo_row(self, fields: ti.template(), copy, row, groups: ti.template()):
+        """``_copy_halo`` of row ``row`` alone."""
+        for group in ti.static(groups):
+            sources, picks = ti.static(self.grid.halo_sources(group))
+            for triple in ti.static(fields):
+                for c in ti.static(range(3)):
+                    loaded = [triple[c][copy, row, source] for source in ti.static(sources)]
+                    triple[c][copy, row, group] = ti.Vector(
+                        [loaded[ti.static(picks[lane][0])][ti.static(picks[lane][1])]
+                         for lane in ti.static(range(SIMD_LANES))])
 
     @ti.func
     def unpack(self, buffer, state, with_velocity: ti.template()):
