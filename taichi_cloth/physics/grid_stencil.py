@@ -27,13 +27,29 @@ def lane_sources(column_step: int) -> tuple:
 
 @ti.func
 def packed_lanes(packed_component: ti.template(), buffer, row, group,
-                 column_step: ti.template()):
+                 column_step: ti.template(), wrap: ti.template()):
     """The SIMD_LANES values of packed columns group·SIMD_LANES + lane + column_step (reading
-    only the groups they lie in)."""
+    only the groups they lie in): with ``wrap`` = 0 from the halo groups past either end, else
+    (``GridStencil.wrapped_groups``, a periodic grid of ``wrap`` whole groups) from the own group
+    they wrap to, so that no halo need be kept."""
     offsets, picks = ti.static(lane_sources(column_step))
-    groups = [packed_component[buffer, row, group + offset] for offset in ti.static(offsets)]
+    groups = [packed_component[buffer, row, source_group(group, offset, wrap)]
+              for offset in ti.static(offsets)]
     return ti.Vector([groups[ti.static(picks[lane][0])][ti.static(picks[lane][1])]
                       for lane in ti.static(range(SIMD_LANES))])
+
+
+@ti.func
+def source_group(group, offset: ti.template(), wrap: ti.template()):
+    """The packed group ``offset`` groups from own group ``group`` (1 … ``wrap``), wrapped round
+    the ``wrap`` own groups of a periodic grid (``wrap`` = 0: not wrapped, a halo group at
+    either end)."""
+    source = group + offset
+    if ti.static(wrap and offset < 0):
+        source = ti.select(source < 1, source + wrap, source)
+    if ti.static(wrap and offset > 0):
+        source = ti.select(source > wrap, source - wrap, source)
+    return source
 
 
 @ti.data_oriented
@@ -57,6 +73,10 @@ class GridStencil:
         self.slot_offsets = slot_offsets
         self.slot_count = len(slot_offsets)
         self.column_runs = column_runs(slot_offsets)
+        # a periodic grid of whole groups of lanes: a read past either end wraps round to the
+        # own groups (``packed_lanes``), so the halo groups need no copies (0: it has a halo)
+        self.wrapped_groups = columns // SIMD_LANES \
+            if periodic and columns % SIMD_LANES == 0 else 0
         # a halo group before the columns' groups and one after: a group's vector reads reach
         # into its neighbours (``packed_lanes``, up to STENCIL_REACH ≤ SIMD_LANES)
         self.group_count = (columns + SIMD_LANES - 1) // SIMD_LANES + 2

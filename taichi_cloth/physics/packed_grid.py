@@ -90,6 +90,9 @@ class PackedGrid:
         # first with a lane past the last column
         last_own_group = columns // SIMD_LANES  # groups 1 … this hold own columns only
         self.wrapping_groups = [0] + list(range(last_own_group + 1, grid.group_count))
+        # whether those groups are copies to keep (a periodic grid whose reads do not wrap round
+        # its own groups: ``GridStencil.wrapped_groups``)
+        self.copies_halo = grid.periodic and not grid.wrapped_groups
         # per forward slot, the wrapping groups whose forces the group pass reads (shifted back
         # by the slot's Δcolumn: group 0's last lane for Δcolumn > 0, the first lanes after the
         # own columns for Δcolumn < 0)
@@ -141,11 +144,12 @@ class PackedGrid:
 
     @ti.func
     def copy_forward_halo(self, row):
-        """On a periodic grid, the lanes of row ``row``'s forward forces and faces that the group
-        pass reads outside the own columns copied from the lanes they wrap (``forward_halo``;
-        the faces: the last lane of group 0). On an open grid those lanes hold 0, never
-        written."""
-        if ti.static(self.grid.periodic):
+        """On a periodic grid with a halo (``copies_halo``), the lanes of row ``row``'s forward
+        forces and faces that the group pass reads outside the own columns copied from the
+        lanes they wrap (``forward_halo``; the faces: the last lane of group 0). On an open grid
+        those lanes hold 0, never written; on a periodic grid of whole groups the reads wrap
+        round instead."""
+        if ti.static(self.copies_halo):
             for k in ti.static(range(len(self.forward_slots))):
                 self._copy_halo_row([self.forward_force[k]], 0, row, self.forward_halo[k])
             if ti.static(self.face_effects):
@@ -274,12 +278,13 @@ class PackedGrid:
     @ti.func
     def refresh_halo(self, buffer):
         """The halo lanes of packed copy ``buffer`` (and of its damped stencils' y) from the own
-        lanes of the columns they copy (periodic grid), after a step that updated the packed
-        state in place: each group that holds a wrapped column made again whole from the groups
-        its lanes come from (``GridStencil.halo_sources``; lane by lane, each store waiting on
-        the last: ~8x longer)."""
-        self._copy_halo([self.packed_x, self.packed_v] + self.damped_triples, buffer,
-                        self.grid.rows, self.wrapping_groups)
+        lanes of the columns they copy (a periodic grid with a halo, ``copies_halo``), after a
+        step that updated the packed state in place: each group that holds a wrapped column made
+        again whole from the groups its lanes come from (``GridStencil.halo_sources``; lane by
+        lane, each store waiting on the last: ~8x longer)."""
+        if ti.static(self.copies_halo):
+            self._copy_halo([self.packed_x, self.packed_v] + self.damped_triples, buffer,
+                            self.grid.rows, self.wrapping_groups)
 
     @ti.func
     def _copy_halo(self, fields: ti.template(), copy, rows: ti.template(),

@@ -61,16 +61,17 @@ def forward_pass_function(packed):
     offsets = sorted({(0, 0), *springs, *(QUAD_CORNERS if face_effects else ())})
     lane_index = ti.Vector(list(range(SIMD_LANES)))
     first_group, end_group = packed.filled_groups
+    wrap = grid.wrapped_groups
 
     @ti.real_func
     def forward_pass(buffer: ti.i32, row: ti.i32):
         for group in range(first_group, end_group):
             x = [[packed_lanes(packed_x[c], buffer, ti.min(row + offset[0], grid.rows - 1),
-                               group, offset[1]) for c in ti.static(range(3))]
+                               group, offset[1], wrap) for c in ti.static(range(3))]
                  for offset in ti.static(offsets)]
             # (read whether or not the springs have dashpots: LLVM drops the unused loads)
             v = [[packed_lanes(packed_v[c], buffer, ti.min(row + offset[0], grid.rows - 1),
-                               group, offset[1]) for c in ti.static(range(3))]
+                               group, offset[1], wrap) for c in ti.static(range(3))]
                  for offset in ti.static(offsets)]
             column = (group - 1) * SIMD_LANES + lane_index
             own = ti.static(offsets.index((0, 0)))
@@ -153,6 +154,7 @@ def group_pass_function(packed, finish):
     stencil_sources = [damped or packed.packed_x for damped in packed.damped_x]
     grid, real = model.grid, model.real
     springs = [grid.slot_offsets[s] for s in packed.forward_slots]
+    wrap = grid.wrapped_groups
 
     @ti.real_func
     def group_pass(buffer: ti.i32, row: ti.i32, group: ti.i32, h: real):
@@ -164,10 +166,11 @@ def group_pass_function(packed, finish):
             if row >= d_row:  # the spring from (row − Δrow, column − Δcolumn) to this lane
                 for c in ti.static(range(3)):
                     force[c] -= packed_lanes(forward_force[k][c], 0, row - d_row, group,
-                                             -d_column)
+                                             -d_column, wrap)
         for e, effect in ti.static(enumerate(stencil_effects)):  # linear stencils
             source = ti.static(stencil_sources[e])
-            y_i = [packed_lanes(source[c], buffer, row, group, 0) for c in ti.static(range(3))]
+            y_i = [packed_lanes(source[c], buffer, row, group, 0, wrap)
+                   for c in ti.static(range(3))]
             for run in ti.static(effect.lane_column_runs):
                 column_step, first_slot, slot_count = ti.static(run)
                 for s in ti.static(range(first_slot, first_slot + slot_count)):
@@ -176,17 +179,18 @@ def group_pass_function(packed, finish):
                         coefficient = effect.lane_coefficient[row, group, s]
                         for c in ti.static(range(3)):
                             force[c] -= coefficient * (packed_lanes(
-                                source[c], buffer, neighbor_row, group, column_step) - y_i[c])
+                                source[c], buffer, neighbor_row, group, column_step, wrap)
+                                - y_i[c])
         for faces in ti.static(face_force):  # the thirds of the particle's six faces
             for c in ti.static(range(3)):
                 # quad (row, column): both faces; (row, column − 1): the second; (row − 1,
                 # column): the first; (row − 1, column − 1): both
                 total = faces[0][c][0, row, group] + faces[1][c][0, row, group] \
-                    + packed_lanes(faces[1][c], 0, row, group, -1)
+                    + packed_lanes(faces[1][c], 0, row, group, -1, wrap)
                 if row > 0:
-                    total += packed_lanes(faces[0][c], 0, row - 1, group, 0) \
-                        + packed_lanes(faces[0][c], 0, row - 1, group, -1) \
-                        + packed_lanes(faces[1][c], 0, row - 1, group, -1)
+                    total += packed_lanes(faces[0][c], 0, row - 1, group, 0, wrap) \
+                        + packed_lanes(faces[0][c], 0, row - 1, group, -1, wrap) \
+                        + packed_lanes(faces[1][c], 0, row - 1, group, -1, wrap)
                 force[c] += total
         finish(buffer, row, group, h, force[0], force[1], force[2])
 

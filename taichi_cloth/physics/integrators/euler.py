@@ -54,7 +54,7 @@ def lane_step_function(forces, uses_new_velocity: bool, gathered_force=None):
     (``PackedGrid.store_damped``: no pass of its own over the state, ~3 µs a substep on
     `hula`). Pinned and halo lanes have inverse mass 0 and coast (``EulerStep`` sets the pins
     afterwards; halo lanes are masked out of the spring pass, or refreshed on a periodic
-    grid)."""
+    grid, or not read at all where the reads wrap round its whole groups)."""
     model = forces.model
     real = model.real
     acceleration = forces.uniform_acceleration
@@ -187,8 +187,7 @@ class EulerStep(Integrator):
             packed.lane_inputs(buffer, True, self.forward_pass)
             for row, group in ti.ndrange(grid.rows, ti.static(packed.filled_groups)):
                 self._step_group(buffer, row, group, t, dt)
-        if ti.static(grid.periodic):
-            packed.refresh_halo(1 - buffer)
+        packed.refresh_halo(1 - buffer)
         if ti.static(self.gathers_listed):
             self._clear_listed()
 
