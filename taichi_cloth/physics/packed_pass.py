@@ -21,7 +21,8 @@ A substep's force evaluation is two loops over the packed groups of a ``PackedGr
    ``finish``. A gather: no atomics, the same sums in any launch order.
 
 Computing each spring once instead of from both ends halved the springs' arithmetic: symplectic
-`hula`'s substep 48-55 µs → 41-43 µs (docs/performance.md, "Each spring once").
+`hula`'s substep 46-51 µs → 41-43 µs in turns (docs/performance.md, "Each spring once, reads
+that wrap round, and the masks' bit scan").
 """
 
 import taichi as ti
