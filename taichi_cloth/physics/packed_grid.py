@@ -21,7 +21,7 @@ import numpy as np
 import taichi as ti
 
 from taichi_cloth.cloth.topology import grid_triangles
-from taichi_cloth.physics.grid_stencil import SIMD_LANES, packed_lanes
+from taichi_cloth.physics.grid_stencil import SIMD_LANES
 from taichi_cloth.physics.packed_pass import forward_pass_function, forward_slots, \
     group_pass_function
 from taichi_cloth.runtime import runs_on_cpu
