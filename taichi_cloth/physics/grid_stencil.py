@@ -72,7 +72,6 @@ class GridStencil:
         self.columns, self.rows, self.periodic = columns, rows, periodic
         self.slot_offsets = slot_offsets
         self.slot_count = len(slot_offsets)
-        self.column_runs = column_runs(slot_offsets)
         # a periodic grid of whole groups of lanes: a read past either end wraps round to the
         # own groups (``packed_lanes``), so the halo groups need no copies (0: it has a halo)
         self.wrapped_groups = columns // SIMD_LANES \
@@ -81,7 +80,6 @@ class GridStencil:
         # into its neighbours (``packed_lanes``, up to STENCIL_REACH ≤ SIMD_LANES)
         self.group_count = (columns + SIMD_LANES - 1) // SIMD_LANES + 2
         # every field first, then the copies (see Model.__init__)
-        self.slot_row_step = ti.field(ti.i32, self.slot_count)
         self.rest_length = ti.field(real, (rows, self.slot_count))
         self.stiffness = ti.field(real, (rows, self.slot_count))
         self.damping = ti.field(real, (rows, self.slot_count))
@@ -90,9 +88,8 @@ class GridStencil:
     def field_values(self) -> list:
         """(field, array) of the tables, for the model's ``uploads``."""
         numpy_real = np.float64 if self.rest_length.dtype == ti.f64 else np.float32
-        return [(self.slot_row_step, np.array([step for step, _ in self.slot_offsets], np.int32)),
-                *((table, np.ascontiguousarray(values, dtype=numpy_real)) for table, values in
-                  zip((self.rest_length, self.stiffness, self.damping), self._tables))]
+        return [(table, np.ascontiguousarray(values, dtype=numpy_real)) for table, values in
+                zip((self.rest_length, self.stiffness, self.damping), self._tables)]
 
     def lane_slots(self, owner: np.ndarray, other: np.ndarray):
         """The slots of entries owner → other (particle indices) as a stencil like the springs':
