@@ -11,7 +11,7 @@ from taichi_cloth.physics.control import Control
 from taichi_cloth.physics.forces import Forces
 from taichi_cloth.physics.integrators import make_integrator
 from taichi_cloth.physics.model import Model
-from taichi_cloth.physics.packed_grid import packed_grid_for
+from taichi_cloth.physics.packed_grid import ROWS_PER_BLOCK, packed_grid_for
 
 
 @dataclass
@@ -26,9 +26,11 @@ class Physics:
 
 
 def assemble(model: Model, effects=(), packed: bool = False, integrator: str | None = None,
-             capsule_radius=(), sample_count: int = 2, post_step=None, **options) -> Physics:
+             capsule_radius=(), sample_count: int = 2, post_step=None,
+             rows_per_block: int = ROWS_PER_BLOCK, **options) -> Physics:
     """The physics of ``model`` as ``Simulation`` builds it: ``effects`` as (effect class,
-    settings) pairs, a packed grid when ``packed`` (and the cloth is one), ``capsule_radius`` [m]
+    settings) pairs, a packed grid when ``packed`` (and the cloth is one; ``rows_per_block`` of
+    its parallel launches), ``capsule_radius`` [m]
     of the capsules in the control's track, ``sample_count`` samples per track; ``options`` go to
     the integrator (the implicit solver's tolerance...)."""
     control = Control(model.garment.pinned, model.garment.positions, model.real,
@@ -38,7 +40,7 @@ def assemble(model: Model, effects=(), packed: bool = False, integrator: str | N
     control.upload(model.uploads)
     for effect in built:
         effect.upload()
-    forces = Forces(model, built, packed_grid_for(model, packed, built))
+    forces = Forces(model, built, packed_grid_for(model, packed, built, rows_per_block))
     stepper = None
     if integrator is not None:
         stepper = make_integrator(integrator, forces, control, post_step) if not options else \

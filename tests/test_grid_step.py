@@ -42,6 +42,9 @@ WAIST_SPEED = 0.2  # m/s
 # the leg jumps away halfway, leaving particles that it pushed on at once (whose lanes must not
 # keep its force)
 LEG, LEG_RADIUS = np.array([[0.29, 0.4, 0.0], [0.29, 0.8, 0.0]]), 0.03  # m
+# rows per block of a parallel launch (``PackedGrid.block_rows``): 17 rows in five blocks, each
+# block's first row reading the two rows before it (the bending springs' Δrow = 2)
+ROWS_PER_BLOCK = 4
 
 
 @ti.data_oriented
@@ -109,7 +112,8 @@ def run(packed: bool, serial: bool, variant: str):
         ([(CapsuleContact, CollisionSettings())] if variant.endswith("contact") else [])
     physics = assemble(model, effects, packed, "symplectic",
                        capsule_radius=[LEG_RADIUS] if variant.endswith("contact") else [],
-                       post_step=FloorProjection(model) if variant == "projection" else None)
+                       post_step=FloorProjection(model) if variant == "projection" else None,
+                       rows_per_block=ROWS_PER_BLOCK)
     if variant.endswith("contact"):
         physics.control.capsule_track.hold(LEG)
     # the waist ring slides along x at WAIST_SPEED during the run: moving pins
@@ -170,10 +174,12 @@ def test_grid_steps_match_the_gather(variant):
     np.testing.assert_allclose(v, v_gather, atol=2e-3 * np.abs(v_gather).max())
 
 
-@pytest.mark.parametrize("variant", ["gravity", "bending-drag-wind", "bending-drag-contact"])
+@pytest.mark.parametrize("variant", ["gravity", "bending-drag-wind", "bending-drag-contact",
+                                     "projection"])
 def test_serial_and_parallel_grid_steps_are_bit_identical(variant):
     """Both launch modes gather every particle's springs (and its gathered effects) in the
-    same order."""
+    same order: a parallel launch's blocks of rows (``ROWS_PER_BLOCK``) compute the forward
+    forces of the rows before their first again, the same bits."""
     serial = run(packed=True, serial=True, variant=variant)
     parallel = run(packed=True, serial=False, variant=variant)
     for a, b in zip(serial, parallel):

@@ -118,10 +118,10 @@ class GridStencil:
             table.reshape(self.rows, self.group_count, SIMD_LANES, slot_count)
             .transpose(0, 1, 3, 2))
 
-    def packed_fields(self, real, copies: int = PACKED_BUFFERS) -> list:
+    def packed_fields(self, real, copies: int = PACKED_BUFFERS, rows: int | None = None) -> list:
         """Three fields (x, y, z) of SIMD_LANES-vectors indexed [copy, row, group], so a group
-        loads as one vector."""
-        return [ti.Vector.field(SIMD_LANES, real, (copies, self.rows, self.group_count))
+        loads as one vector; ``rows``: fewer rows than the grid's (a ring of rows)."""
+        return [ti.Vector.field(SIMD_LANES, real, (copies, rows or self.rows, self.group_count))
                 for _ in range(3)]
 
     def lane_fields(self, real) -> list:

@@ -23,10 +23,14 @@ import taichi as ti
 from taichi_cloth.cloth.topology import grid_triangles
 from taichi_cloth.physics.grid_stencil import SIMD_LANES
 from taichi_cloth.physics.packed_pass import forward_pass_function, forward_slots, \
-    group_pass_function
+    group_pass_function, ring_row
 from taichi_cloth.runtime import runs_on_cpu
 
 PACKED_PARTICLE_MINIMUM = 1024  # below it the CSR gather is as fast and compiles in a blink
+# rows per block of a parallel launch (``PackedGrid.block_rows``): each block computes the
+# forward pass of the rows before its first that its first reads again (one on `hula`'s
+# stencil), 1/ROWS_PER_BLOCK more of it
+ROWS_PER_BLOCK = 32
 
 
 @ti.data_oriented
@@ -39,15 +43,17 @@ class PackedGrid:
     for pinned and halo lanes) and ``group_has_pin`` per group, for the integrators that step in
     the lanes; ``forward_force`` [N]: per forward slot of the springs (``forward_slots``), the
     spring's force on its owner lane, (x, y, z) fields indexed [0, row, group] as a packed copy
-    (``packed_lanes`` reads them shifted); ``lane_effects``: the effects whose forces the pass adds
+    (``packed_lanes`` reads them shifted), per block of rows a ring of two rows
+    (``packed_pass.ring_row``); ``lane_effects``: the effects whose forces the pass adds
     (``packed_pass``): ``stencil_effects`` (``Effect.allocate_lanes``) and ``face_effects``
     (``Effect.lane_faces``, each with its ``face_force``).
     """
 
-    def __init__(self, model, effects=()):
+    def __init__(self, model, effects=(), rows_per_block: int = ROWS_PER_BLOCK):
         """effects: the scene's effects; those with a force that can act in the SIMD pass
-        become its ``lane_effects``."""
+        become its ``lane_effects``; ``rows_per_block``: of a parallel launch (``block_rows``)."""
         self.model = model
+        self.rows_per_block = rows_per_block
         self.grid = model.grid
         grid = model.grid
         self.stencil_effects = [e for e in effects if e.has_force and e.allocate_lanes(grid)]
@@ -58,16 +64,24 @@ class PackedGrid:
         self.needs_velocity = model.has_dashpots or bool(self.face_effects)
         self.packed_x = grid.packed_fields(model.real)
         self.packed_v = grid.packed_fields(model.real)
-        # per face effect, its pressure's third on the (TL, BL, BR) and (TL, BR, TR) triangles
-        # of each quad [N], (x, y, z) fields of SIMD_LANES-vectors indexed [0, row, group] (as a
-        # packed copy, so ``packed_lanes`` reads them shifted); never written in the last row
-        self.face_force = [[grid.packed_fields(model.real, copies=1) for _ in range(2)]
-                           for _ in self.face_effects]
-        self.face_triples = [triple for faces in self.face_force for triple in faces]
-        # each spring once, from the end whose slot points forward (``packed_pass``): its force
-        # on that end per forward slot [N], 0 where the slot is off the grid (the halo's too)
+        # each spring once, from the end whose slot points forward (``packed_pass``)
         self.forward_slots = forward_slots(grid.slot_offsets)
-        self.forward_force = [grid.packed_fields(model.real, copies=1)
+        # blocks of rows that a parallel launch runs apart (``block_rows``), and the rows before
+        # its own that a row's group pass reads: the forward slots' Δrow, the faces' 1
+        self.block_count = -(-grid.rows // rows_per_block)
+        self.rows_back = max([grid.slot_offsets[s][0] for s in self.forward_slots]
+                             + [1 if self.face_effects else 0])
+        self.ring_rows = self.rows_back + 1  # per block: a row and those its pass reads back
+        # per face effect, its pressure's third on the (TL, BL, BR) and (TL, BR, TR) triangles
+        # of each quad [N], (x, y, z) fields of SIMD_LANES-vectors indexed [block, ring row,
+        # group] (as packed copies, so ``packed_lanes`` reads them shifted); never written for
+        # the last row
+        self.face_force = [[grid.packed_fields(model.real, self.block_count, self.ring_rows)
+                            for _ in range(2)] for _ in self.face_effects]
+        self.face_triples = [triple for faces in self.face_force for triple in faces]
+        # each spring's force on its forward end per forward slot [N], 0 where the slot is off
+        # the grid (the halo's too), [block, ring row, group] as the faces
+        self.forward_force = [grid.packed_fields(model.real, self.block_count, self.ring_rows)
                               for _ in self.forward_slots]
         # per stencil effect with a dashpot (β ≠ 0 and the scene declares damping): y = x + β·v
         # of each packed copy of the state, made with it (``make_damped``; the lanes' step as
@@ -111,11 +125,15 @@ class PackedGrid:
     @ti.func
     def spring_pass(self, x, v):
         """Every particle's spring force (and its lane effects') into ``packed_force``: pack
-        (x, v) into packed copy 0, then the SIMD stencil pass."""
+        (x, v) into packed copy 0, then the SIMD stencil pass, blocks of rows in parallel."""
         self.pack(x, v, 0, self.needs_velocity)
-        self.lane_inputs(0, False, self.forward_pass)
-        for row, group in ti.ndrange(self.grid.rows, ti.static(self.filled_groups)):
-            self.group_springs(0, row, group, 0.0)
+        self.make_damped(0)
+        for block in range(self.block_count):
+            first, end = self.block_rows(block, False)
+            for row in range(first, end):
+                self.forward_row(0, row, block, first, self.forward_pass)
+                for group in range(self.filled_groups[0], self.filled_groups[1]):
+                    self.group_springs(0, row, block, group, 0.0)
 
     def _triangles_are_the_grids(self) -> bool:
         """Whether the cloth's triangles are the grid's (``cloth.topology.grid_triangles``: each
@@ -129,31 +147,43 @@ class PackedGrid:
             np.unique(np.sort(expected, axis=1), axis=0))
 
     @ti.func
-    def lane_inputs(self, buffer, damped_made: ti.template(), forward_pass: ti.template()):
-        """What the group pass reads besides packed copy ``buffer`` of the state: its damped
-        stencils' y = x + β·v (``make_damped``, unless ``damped_made``: the lanes' step made
-        them with the state), and, from ``forward_pass`` (``packed_pass.forward_pass_function``:
-        the caller's own), the forward springs' forces and the face effects' pressures, every
-        row, then their halo (``copy_forward_halo``)."""
-        if ti.static(not damped_made):
-            self.make_damped(buffer)
-        for row in range(self.grid.rows):
-            forward_pass(buffer, row)
-        for row in range(self.grid.rows):
-            self.copy_forward_halo(row)
+    def block_rows(self, block, serial: ti.template()):
+        """The rows (first, last + 1) of block ``block``: ``rows_per_block`` of them, or in a
+        serial launch (``serial``, block 0 only) every row."""
+        first, end = 0, self.grid.rows
+        if ti.static(not serial):
+            first = block * self.rows_per_block
+            end = ti.min(first + self.rows_per_block, self.grid.rows)
+        return first, end
 
     @ti.func
-    def copy_forward_halo(self, row):
+    def forward_row(self, buffer, row, block, first, forward_pass: ti.template()):
+        """What the group pass of row ``row`` (in block ``block``, whose first row is ``first``)
+        reads besides packed copy ``buffer`` of the state and its damped stencils' y
+        (``make_damped``), from ``forward_pass`` (``packed_pass.forward_pass_function``: the
+        caller's own): the forward springs' forces and the face effects' pressures of the row
+        (and first, at a block's first row, of the ``rows_back`` rows before it that are in the
+        grid), then their halo (``copy_forward_halo``)."""
+        if row == first:
+            for back in range(ti.max(first - self.rows_back, 0), first):
+                forward_pass(buffer, back, block)
+                self.copy_forward_halo(back, block)
+        forward_pass(buffer, row, block)
+        self.copy_forward_halo(row, block)
+
+    @ti.func
+    def copy_forward_halo(self, row, block):
         """On a periodic grid with a halo (``copies_halo``), the lanes of row ``row``'s forward
-        forces and faces that the group pass reads outside the own columns copied from the
-        lanes they wrap (``forward_halo``; the faces: the last lane of group 0). On an open grid
-        those lanes hold 0, never written; on a periodic grid of whole groups the reads wrap
-        round instead."""
+        forces and faces (in block ``block``'s ring) that the group pass reads outside the own
+        columns copied from the lanes they wrap (``forward_halo``; the faces: the last lane of
+        group 0). On an open grid those lanes hold 0, never written; on a periodic grid of whole
+        groups the reads wrap round instead."""
         if ti.static(self.copies_halo):
+            ring = ring_row(self, row)
             for k in ti.static(range(len(self.forward_slots))):
-                self._copy_halo_row([self.forward_force[k]], 0, row, self.forward_halo[k])
+                self._copy_halo_row([self.forward_force[k]], block, ring, self.forward_halo[k])
             if ti.static(self.face_effects):
-                self._copy_halo_row(self.face_triples, 0, row, [0])
+                self._copy_halo_row(self.face_triples, block, ring, [0])
 
     @ti.func
     def make_damped(self, buffer):
@@ -336,7 +366,8 @@ class PackedParticles:
         return self.packed.lane_value(self.fields, self.copy, i_p)
 
 
-def packed_grid_for(model, wanted: bool, effects=()) -> PackedGrid | None:
+def packed_grid_for(model, wanted: bool, effects=(),
+                    rows_per_block: int = ROWS_PER_BLOCK) -> PackedGrid | None:
     """A ``PackedGrid`` (with ``effects`` that can act in its lanes) when ``wanted`` (an
     integrator with one force evaluation per step), the runtime is on the CPU and the cloth is
     a grid of at least ``PACKED_PARTICLE_MINIMUM`` particles; None otherwise. The lanes are the
@@ -346,5 +377,5 @@ def packed_grid_for(model, wanted: bool, effects=()) -> PackedGrid | None:
     particle is what the GPU runs well."""
     if wanted and runs_on_cpu() and model.grid is not None \
             and model.particle_count >= PACKED_PARTICLE_MINIMUM:
-        return PackedGrid(model, effects)
+        return PackedGrid(model, effects, rows_per_block)
     return None

@@ -13,7 +13,9 @@ A substep's force evaluation is two loops over the packed groups of a ``PackedGr
    into ``PackedGrid.forward_force`` (docs/physics.md, "Springs and dashpots": the same formula
    with n = d/l; 0 for a slot off the grid or a spring of zero length); and each face effect's
    pressure on the two triangles of the row's quads (``effects.aerodynamics.plate_pressure``, a
-   third of it, into ``face_force``), from the same reads of the quad's corners.
+   third of it, into ``face_force``), from the same reads of the quad's corners. Both hold a
+   ring of rows per block of rows (row r in ring row r % ``PackedGrid.ring_rows``), as the group
+   pass of row r reads rows r − Δrow of the forward slots and r − 1 of the faces only.
 2. The group pass (``group_pass_function``): each lane adds its forward springs' f_ij, subtracts
    the f_ji of the springs whose forward slot is at the other end (read shifted by the slot's
    offset: the reaction f_j = −f_i of a spring), adds the linear stencils of the effects that act
@@ -23,6 +25,11 @@ A substep's force evaluation is two loops over the packed groups of a ``PackedGr
 Computing each spring once instead of from both ends halved the springs' arithmetic: symplectic
 `hula`'s substep 46-51 µs → 41-43 µs in turns (docs/performance.md, "Each spring once, reads
 that wrap round, and the masks' bit scan").
+
+The two passes go row by row through a block of rows (``PackedGrid.block_rows``), each row's
+forward pass then its group pass, so that the forward forces are read back while they are in the
+core's first-level cache; the blocks run in parallel, each one's first row reading the forward
+forces of the row before it, which the block computes again for itself.
 """
 
 import taichi as ti
@@ -42,11 +49,12 @@ def forward_slots(slot_offsets: list) -> list:
 
 
 def forward_pass_function(packed):
-    """A ``ti.real_func`` (buffer, row): for each group of row ``row`` that holds grid columns,
-    from packed copy ``buffer`` of ``packed`` (a ``PackedGrid``), the forward springs' forces
-    (the module docstring's step 1) into ``packed.forward_force`` [N] and the face effects'
-    pressures on the quads of rows row, row + 1 (TL, BL, BR and TL, BR, TR, as
-    ``cloth.topology.grid_triangles``; none in the last row) into ``packed.face_force`` [N].
+    """A ``ti.real_func`` (buffer, row, block): for each group of row ``row`` that holds grid
+    columns, from packed copy ``buffer`` of ``packed`` (a ``PackedGrid``), the forward springs'
+    forces (the module docstring's step 1) into ``packed.forward_force`` [N] and the face
+    effects' pressures on the quads of rows row, row + 1 (TL, BL, BR and TL, BR, TR, as
+    ``cloth.topology.grid_triangles``; none in the last row) into ``packed.face_force`` [N], both
+    at [block, ring row of ``row``, group].
     Each corner's x and v is read once for both (a read past the last row reads the last row: its
     springs and faces are not stored). Real, so that a launch of many substeps compiles it once;
     a row a call (on `hula` the faces took 5.2-5.5 µs a substep this way against 6.3-7.0 at a
@@ -65,7 +73,8 @@ def forward_pass_function(packed):
     wrap = grid.wrapped_groups
 
     @ti.real_func
-    def forward_pass(buffer: ti.i32, row: ti.i32):
+    def forward_pass(buffer: ti.i32, row: ti.i32, block: ti.i32):
+        ring = ring_row(packed, row)
         for group in range(first_group, end_group):
             x = [[packed_lanes(packed_x[c], buffer, ti.min(row + offset[0], grid.rows - 1),
                                group, offset[1], wrap) for c in ti.static(range(3))]
@@ -86,7 +95,8 @@ def forward_pass_function(packed):
                     force = spring_lanes(grid, row, packed.forward_slots[k], x[own], x[j],
                                          v[own], v[j], model.has_dashpots)
                     for c in ti.static(range(3)):
-                        forward_force[k][c][0, row, group] = ti.select(present, force[c], 0.0)
+                        forward_force[k][c][block, ring, group] = ti.select(present, force[c],
+                                                                            0.0)
             if ti.static(face_effects):
                 if row < grid.rows - 1:
                     present = column >= -SIMD_LANES
@@ -104,10 +114,17 @@ def forward_pass_function(packed):
                                 [corner[c][k] - corner[a][k] for k in ti.static(range(3))],
                                 effect.face_air(face_velocity))
                             for k in ti.static(range(3)):
-                                face_force[e][kind][k][0, row, group] = ti.select(
+                                face_force[e][kind][k][block, ring, group] = ti.select(
                                     present, real(effect.face_factor / 3.0) * pressure[k], 0.0)
 
     return forward_pass
+
+
+@ti.func
+def ring_row(packed: ti.template(), row):
+    """Where row ``row``'s forward forces and faces are kept in its block's ring of rows
+    (``PackedGrid.ring_rows`` of them)."""
+    return row % packed.ring_rows
 
 
 @ti.func
@@ -130,9 +147,10 @@ def spring_lanes(grid: ti.template(), row, slot: ti.template(), x_i: ti.template
 
 
 def group_pass_function(packed, finish):
-    """A ``ti.real_func`` (buffer, row, group, h) that sums the force on the SIMD_LANES particles
-    of one group of ``packed`` (a ``PackedGrid``, packed copy ``buffer``, after its
-    ``lane_inputs``) as three SIMD_LANES-vectors (x, y, z) and hands them to
+    """A ``ti.real_func`` (buffer, row, block, group, h) that sums the force on the SIMD_LANES
+    particles of one group of ``packed`` (a ``PackedGrid``, packed copy ``buffer``, after the
+    forward pass of rows row − 1 and row in block ``block``: ``PackedGrid.forward_row``) as three
+    SIMD_LANES-vectors (x, y, z) and hands them to
     ``finish(buffer, row, group, h, f_x, f_y, f_z)``, a ``ti.func`` (``PackedGrid`` stores them
     per particle, ``EulerStep`` steps the lanes with step h [s]). The sum (the module docstring's
     step 2): the springs' forward forces of the lane and, negated, those of the springs whose
@@ -158,15 +176,18 @@ def group_pass_function(packed, finish):
     wrap = grid.wrapped_groups
 
     @ti.real_func
-    def group_pass(buffer: ti.i32, row: ti.i32, group: ti.i32, h: real):
+    def group_pass(buffer: ti.i32, row: ti.i32, block: ti.i32, group: ti.i32, h: real):
         force = [ti.Vector.zero(real, SIMD_LANES) for _ in ti.static(range(3))]
+        ring = ring_row(packed, row)
         for k, offset in ti.static(enumerate(springs)):
             d_row, d_column = ti.static(offset)
-            for c in ti.static(range(3)):
-                force[c] += forward_force[k][c][0, row, group]
-            if row >= d_row:  # the spring from (row − Δrow, column − Δcolumn) to this lane
+            if row + d_row < grid.rows:  # (the ring holds another row's otherwise)
                 for c in ti.static(range(3)):
-                    force[c] -= packed_lanes(forward_force[k][c], 0, row - d_row, group,
+                    force[c] += forward_force[k][c][block, ring, group]
+            if row >= d_row:  # the spring from (row − Δrow, column − Δcolumn) to this lane
+                source = ring_row(packed, row - d_row)
+                for c in ti.static(range(3)):
+                    force[c] -= packed_lanes(forward_force[k][c], block, source, group,
                                              -d_column, wrap)
         for e, effect in ti.static(enumerate(stencil_effects)):  # linear stencils
             source = ti.static(stencil_sources[e])
@@ -186,12 +207,15 @@ def group_pass_function(packed, finish):
             for c in ti.static(range(3)):
                 # quad (row, column): both faces; (row, column − 1): the second; (row − 1,
                 # column): the first; (row − 1, column − 1): both
-                total = faces[0][c][0, row, group] + faces[1][c][0, row, group] \
-                    + packed_lanes(faces[1][c], 0, row, group, -1, wrap)
+                total = ti.Vector.zero(real, SIMD_LANES)
+                if row < grid.rows - 1:
+                    total += faces[0][c][block, ring, group] + faces[1][c][block, ring, group] \
+                        + packed_lanes(faces[1][c], block, ring, group, -1, wrap)
                 if row > 0:
-                    total += packed_lanes(faces[0][c], 0, row - 1, group, 0, wrap) \
-                        + packed_lanes(faces[0][c], 0, row - 1, group, -1, wrap) \
-                        + packed_lanes(faces[1][c], 0, row - 1, group, -1, wrap)
+                    before = ring_row(packed, row - 1)
+                    total += packed_lanes(faces[0][c], block, before, group, 0, wrap) \
+                        + packed_lanes(faces[0][c], block, before, group, -1, wrap) \
+                        + packed_lanes(faces[1][c], block, before, group, -1, wrap)
                 force[c] += total
         finish(buffer, row, group, h, force[0], force[1], force[2])
 

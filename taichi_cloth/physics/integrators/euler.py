@@ -18,9 +18,10 @@ A substep takes one of three paths, chosen at compile time:
   the CSR lists (any cloth);
 - packed (with a projection after each substep, ``post_step``, which moves particles in the
   unpacked state): on a packed grid (``forces.packed``, ``physics.packed_grid``) the state
-  packed, the forward pass (each spring's force once, the faces of its face effects) and the
-  damped stencils' x + β·v (``PackedGrid.lane_inputs``), then one loop over the packed groups:
-  the SIMD group pass (``physics.packed_pass``), then the update of its particles (any effects);
+  packed and the damped stencils' x + β·v, then row by row in blocks of rows the forward pass
+  (each spring's force once, the faces of its face effects: ``PackedGrid.forward_row``) and for
+  each group the SIMD group pass (``physics.packed_pass``), then the update of its particles
+  (any effects);
 - lanes (a packed grid without a projection): the update too runs in the SIMD lanes
   (``lane_step_function``): the packed state is stepped as whole vectors, pins are set
   afterwards, and x, v are unpacked once at the end of the launch (``end_launch``). The forces
@@ -155,11 +156,12 @@ class EulerStep(Integrator):
 
     @ti.func
     def _lanes_substep(self, state_in, t, dt, buffer):
-        """The forward pass of every row, then ``group_step`` for every group and the pins set
-        to their targets at t + h (``_step_group``); in a serial launch (``serial``: the kernel
-        ``_advance_serial``) row by row, each row's forward pass and halo, then its groups (a
-        group's sum reads the forward forces of its own row and the row before: ~1.5 µs a
-        substep less on ``hula`` than two loops over the rows, the same bits). With
+        """Row by row in blocks of rows (``PackedGrid.block_rows``: in parallel, or all rows in
+        one block in a serial launch, ``serial``: the kernel ``_advance_serial``), each row's
+        forward pass and halo (``PackedGrid.forward_row``), then ``group_step`` for each of its
+        groups and the pins set to their targets at t + h (``_step_group``; a group's sum reads
+        the forward forces of its own row and the row before: ~1.5 µs a substep less on
+        ``hula`` than two loops over the rows, the same bits). With
         ``gathers_for_lanes``, first packed copy ``buffer`` unpacked into state_in, the
         effects' passes (``Forces.prepare_effects``) and the pointwise effects' forces into
         ``gathered_force``: of every particle, or with ``gathers_listed`` only of the particles
@@ -168,7 +170,6 @@ class EulerStep(Integrator):
         particle's, for contact's masks: 1.7 µs on ``hula``, where reading them from the lanes
         made contact's pass ~7 µs longer, docs/performance.md)."""
         packed = self.packed
-        grid = self.model.grid
         if ti.static(self.gathers_for_lanes):
             packed.unpack(buffer, state_in, not self.gathers_listed)
             x, v = ti.static(self._effects_state(state_in, buffer))
@@ -177,26 +178,23 @@ class EulerStep(Integrator):
                 self._gather_listed(x, v, t)
             else:
                 self._gather_lanes(x, v, t)
-        if ti.static(self.serial):
-            for row in range(grid.rows):
-                self.forward_pass(buffer, row)
-                packed.copy_forward_halo(row)
-                for group in ti.static(range(*packed.filled_groups)):
-                    self._step_group(buffer, row, group, t, dt)
-        else:
-            packed.lane_inputs(buffer, True, self.forward_pass)
-            for row, group in ti.ndrange(grid.rows, ti.static(packed.filled_groups)):
-                self._step_group(buffer, row, group, t, dt)
+        for block in range(1 if ti.static(self.serial) else packed.block_count):
+            first, end = packed.block_rows(block, self.serial)
+            for row in range(first, end):
+                packed.forward_row(buffer, row, block, first, self.forward_pass)
+                for group in range(packed.filled_groups[0], packed.filled_groups[1]):
+                    self._step_group(buffer, row, block, group, t, dt)
         packed.refresh_halo(1 - buffer)
         if ti.static(self.gathers_listed):
             self._clear_listed()
 
     @ti.func
-    def _step_group(self, buffer, row, group, t, dt):
-        """``group_step`` of group ``group`` of row ``row`` from packed copy ``buffer`` at t [s]
-        by dt [s], then its pinned lanes set to their targets at t + dt."""
+    def _step_group(self, buffer, row, block, group, t, dt):
+        """``group_step`` of group ``group`` of row ``row`` (in block ``block``) from packed
+        copy ``buffer`` at t [s] by dt [s], then its pinned lanes set to their targets at
+        t + dt."""
         model, packed = self.model, self.packed
-        self.group_step(buffer, row, group, ti.cast(dt, model.real))
+        self.group_step(buffer, row, block, group, ti.cast(dt, model.real))
         if packed.group_has_pin[row, group]:
             first, end = packed.group_particles(row, group)
             # the pins' targets at t + h: the time's weights once for the group's pins (in the
@@ -260,15 +258,18 @@ class EulerStep(Integrator):
         """The state packed (a projection moved particles since the last substep), the SIMD
         spring pass and the per-particle update (any effects), group by group."""
         packed = self.packed
-        grid = self.model.grid
         self.forces.prepare_effects(state_in.x, state_in.v, t)
         packed.pack(state_in.x, state_in.v, buffer, packed.needs_velocity)
-        packed.lane_inputs(buffer, False, packed.forward_pass)
-        for row, group in ti.ndrange(grid.rows, ti.static(packed.filled_groups)):
-            packed.group_springs(buffer, row, group, 0.0)
-            first, end = packed.group_particles(row, group)
-            for i_p in range(first, end):
-                self._update(state_in, state_out, i_p, t, dt)
+        packed.make_damped(buffer)
+        for block in range(1 if ti.static(self.serial) else packed.block_count):
+            first_row, end_row = packed.block_rows(block, self.serial)
+            for row in range(first_row, end_row):
+                packed.forward_row(buffer, row, block, first_row, packed.forward_pass)
+                for group in range(packed.filled_groups[0], packed.filled_groups[1]):
+                    packed.group_springs(buffer, row, block, group, 0.0)
+                    first, end = packed.group_particles(row, group)
+                    for i_p in range(first, end):
+                        self._update(state_in, state_out, i_p, t, dt)
 
     @ti.func
     def _update(self, state_in, state_out, i_p, t, dt):
