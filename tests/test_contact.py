@@ -5,7 +5,8 @@ import pytest
 import taichi as ti
 
 from taichi_cloth.effects.collision import CapsuleContact, CollisionSettings
-from taichi_cloth.effects.penalty import closest_on_segment, closest_points_numpy
+from taichi_cloth.effects.penalty import (capsule_penetration_depths, closest_on_segment,
+                                          closest_points_numpy)
 from taichi_cloth.physics.model import Model
 
 from systems import assemble, one_spring_garment
@@ -51,6 +52,29 @@ def test_point_to_segment_distance_matches_dense_sampling(a, b):
     tolerance = 1e-4 * max(np.linalg.norm(b - a), 1e-3)
     np.testing.assert_allclose(kernel_distance, reference, atol=tolerance)
     np.testing.assert_allclose(numpy_distance[:, 0], reference, atol=tolerance)
+
+
+def test_penetration_depths_take_the_deepest_capsule_by_dense_sampling():
+    """The penetration metric (a kernel that skips the capsules whose bounding sphere a point is
+    outside) against the depth r − |x − y| taken by dense sampling of every capsule: three bones
+    that overlap, one of them a sphere (a = b), points around and inside them, some exactly on a
+    bounding sphere."""
+    a = np.array([[0.0, 0.0, 0.0], [0.05, 0.3, 0.0], [0.2, 0.1, 0.1]])
+    b = np.array([[0.0, 0.4, 0.0], [0.3, 0.45, 0.1], [0.2, 0.1, 0.1]])
+    radius = np.array([0.08, 0.05, 0.12])
+    rng = np.random.default_rng(7)
+    centre, reach = 0.5 * (a + b), 0.5 * np.linalg.norm(b - a, axis=1) + radius
+    direction = rng.standard_normal((30, 3))
+    on_spheres = centre[1] + reach[1] * direction / np.linalg.norm(direction, axis=1)[:, None]
+    along = [a_c + rng.uniform(-0.2, 1.2, (100, 1)) * (b_c - a_c)
+             + 0.08 * rng.standard_normal((100, 3)) for a_c, b_c in zip(a, b)]
+    x = np.concatenate([*along, on_spheres])
+    reference = np.maximum(0.0, np.max(
+        [r - np.array([brute_force_distance(p, a_c, b_c) for p in x])
+         for a_c, b_c, r in zip(a, b, radius)], axis=0))
+    depth = capsule_penetration_depths(x, a, b, radius)
+    assert np.count_nonzero(reference > 1e-3) > 100  # many points inside
+    np.testing.assert_allclose(depth, reference, atol=1e-4 * 0.4)
 
 
 class OneCapsule:

@@ -55,26 +55,39 @@ def closest_points_numpy(x: np.ndarray, a: np.ndarray, b: np.ndarray):
 def capsule_penetration_depths(x: np.ndarray, a: np.ndarray, b: np.ndarray,
                                radius: np.ndarray) -> np.ndarray:
     """How deep [m] each point of x (P, 3) lies inside the capsule it is deepest in (0 when in
-    none), the capsules (a, b) (C, 3) [m] with ``radius`` (C,) [m]. One capsule at a time, and
-    only the points inside its bounding sphere (the metric samples ~10⁴ points a frame), their
-    squared distances to every capsule's centre taken at once as |x|² + |c|² − 2·x·c (a point
-    rounded out of a sphere lies on it, where no capsule reaches: depth 0)."""
+    none), the capsules (a, b) (C, 3) [m] with ``radius`` (C,) [m]: a Taichi kernel over the
+    points in float64, each against the capsules whose bounding sphere it is inside (a point on
+    the sphere lies where no capsule reaches: depth 0). The metric samples ~10⁴ points a frame.
+    It compiles once per process whatever the sizes (NumPy arrays as arguments)."""
     depth = np.zeros(len(x))
-    centres = 0.5 * (a + b)
-    reach = 0.5 * np.linalg.norm(b - a, axis=1) + radius
-    squared = np.einsum("pk,pk->p", x, x)[:, None] + np.einsum("ck,ck->c", centres, centres) \
-        - 2.0 * (x @ centres.T)
-    for start, end, r, inside in zip(a, b, radius, (squared < reach * reach).T):
-        axis = end - start
-        near = np.flatnonzero(inside)
-        if not len(near):
-            continue
-        offset = x[near] - start
-        length_sq = float(axis @ axis)
-        s = np.clip(offset @ axis / length_sq, 0.0, 1.0) if length_sq > 0 else 0.0
-        distance = np.linalg.norm(offset - np.multiply.outer(s, axis), axis=1)
-        depth[near] = np.maximum(depth[near], r - distance)
+    if len(x) and len(a):
+        a, b = (np.ascontiguousarray(end, dtype=np.float64) for end in (a, b))
+        radius = np.ascontiguousarray(radius, dtype=np.float64)
+        reach = 0.5 * np.linalg.norm(b - a, axis=1) + radius
+        deepest_in_capsules(np.ascontiguousarray(x, dtype=np.float64), a, b, radius,
+                            0.5 * (a + b), reach * reach, depth)
     return depth
+
+
+@ti.kernel
+def deepest_in_capsules(x: ti.types.ndarray(dtype=ti.types.vector(3, ti.f64), ndim=1),
+                        a: ti.types.ndarray(dtype=ti.types.vector(3, ti.f64), ndim=1),
+                        b: ti.types.ndarray(dtype=ti.types.vector(3, ti.f64), ndim=1),
+                        radius: ti.types.ndarray(dtype=ti.f64, ndim=1),
+                        centre: ti.types.ndarray(dtype=ti.types.vector(3, ti.f64), ndim=1),
+                        reach_sq: ti.types.ndarray(dtype=ti.f64, ndim=1),
+                        depth: ti.types.ndarray(dtype=ti.f64, ndim=1)):
+    """depth[p] = max(0, max over capsules c of radius[c] − |x[p] − y|), y the point of segment
+    a[c]–b[c] closest to x[p] (``closest_on_segment``; a = b a sphere), taken only for the
+    capsules whose bounding sphere (``centre``, squared radius ``reach_sq``) holds x[p]."""
+    for p in range(x.shape[0]):
+        deepest = ti.f64(0.0)
+        for c in range(a.shape[0]):
+            if (x[p] - centre[c]).norm_sqr() < reach_sq[c]:
+                along = closest_on_segment(x[p], a[c], b[c])
+                closest = a[c] + along * (b[c] - a[c])
+                deepest = ti.max(deepest, radius[c] - (x[p] - closest).norm())
+        depth[p] = deepest
 
 
 @ti.func

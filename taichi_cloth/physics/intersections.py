@@ -171,12 +171,14 @@ def count_intersecting_pairs(x: ti.types.ndarray(dtype=vec3, ndim=1),
                              bucket_fill: ti.types.ndarray(dtype=ti.i32, ndim=1),
                              filed: ti.types.ndarray(dtype=ti.i32, ndim=1),
                              filed_cell: ti.types.ndarray(dtype=cell3, ndim=1),
+                             first_cell: ti.types.ndarray(dtype=cell3, ndim=1),
                              found: ti.types.ndarray(dtype=pair2, ndim=1),
                              cell_size: ti.types.ndarray(dtype=ti.f64, ndim=1),
                              pairs: ti.types.ndarray(dtype=ti.i32, ndim=1)):
     """The broad phase and Möller's test (module docstring): ``pairs[0]`` = the number of
     intersecting non-adjacent pairs, the first ``found.shape[0]`` of them in ``found``. The other
-    arrays are scratch: per triangle (T) its box, per bucket (B, B + 1), per filing (F) its
+    arrays are scratch: per triangle (T) its box and the first cell it spans (read by the walk
+    for every pair it meets: no divisions there), per bucket (B, B + 1), per filing (F) its
     triangle and cell."""
     bucket_count = bucket_fill.shape[0]
     capacity = filed.shape[0]
@@ -205,6 +207,7 @@ def count_intersecting_pairs(x: ti.types.ndarray(dtype=vec3, ndim=1),
         cell_size[0] = size
     for t in range(triangles.shape[0]):
         first, last = cells_spanned(low[t], high[t], cell_size[0])
+        first_cell[t] = first
         for cell in ti.grouped(ti.ndrange((first[0], last[0] + 1), (first[1], last[1] + 1),
                                           (first[2], last[2] + 1))):
             ti.atomic_add(bucket_fill[hash_cell(cell, bucket_count)], 1)
@@ -236,8 +239,7 @@ def count_intersecting_pairs(x: ti.types.ndarray(dtype=vec3, ndim=1),
                 # nested tests: a kernel's ``and`` evaluates both sides
                 if (filed_cell[k] == cell).all():
                     if (low[a] <= high[b]).all() and (low[b] <= high[a]).all():
-                        other_first, _ = cells_spanned(low[b], high[b], cell_size[0])
-                        if (ti.max(first, other_first) == cell).all():  # the pair's first cell
+                        if (ti.max(first, first_cell[b]) == cell).all():  # the pair's first cell
                             corner_b = triangles[b]
                             shared = 0
                             for i, j in ti.static(ti.ndrange(3, 3)):
@@ -264,7 +266,8 @@ class IntersectionCounter:
         filings = max(1, FILINGS_PER_TRIANGLE * count)
         self.scratch = (np.zeros((count, 3)), np.zeros((count, 3)),
                         np.zeros(buckets + 1, np.int32), np.zeros(buckets, np.int32),
-                        np.zeros(filings, np.int32), np.zeros((filings, 3), np.int64))
+                        np.zeros(filings, np.int32), np.zeros((filings, 3), np.int64),
+                        np.zeros((count, 3), np.int64))
         self.found = np.zeros((FOUND_CAPACITY, 2), np.int32)
         self.cell_size = np.zeros(1)
         self.pairs = np.zeros(1, np.int32)
