@@ -42,9 +42,9 @@ class PackedGrid:
     fields of SIMD_LANES-vectors indexed [row, group]; ``packed_inv_mass`` [1/kg] per lane (0
     for pinned and halo lanes) and ``group_has_pin`` per group, for the integrators that step in
     the lanes; ``forward_force`` [N]: per forward slot of the springs (``forward_slots``), the
-    spring's force on its owner lane, (x, y, z) fields indexed [0, row, group] as a packed copy
-    (``packed_lanes`` reads them shifted), per block of rows a ring of two rows
-    (``packed_pass.ring_row``); ``lane_effects``: the effects whose forces the pass adds
+    spring's force on its owner lane, (x, y, z) fields indexed [block, ring row, group] as
+    packed copies (``packed_lanes`` reads them shifted): per block of rows a ring of
+    ``ring_rows`` rows (``packed_pass.ring_row``); ``lane_effects``: the effects whose forces the pass adds
     (``packed_pass``): ``stencil_effects`` (``Effect.allocate_lanes``) and ``face_effects``
     (``Effect.lane_faces``, each with its ``face_force``).
     """

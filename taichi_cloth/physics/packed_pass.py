@@ -29,7 +29,8 @@ that wrap round, and the masks' bit scan").
 The two passes go row by row through a block of rows (``PackedGrid.block_rows``), each row's
 forward pass then its group pass, so that the forward forces are read back while they are in the
 core's first-level cache; the blocks run in parallel, each one's first row reading the forward
-forces of the row before it, which the block computes again for itself.
+forces of the rows before it (``PackedGrid.rows_back``), which the block computes again for
+itself.
 """
 
 import taichi as ti
@@ -149,7 +150,8 @@ def spring_lanes(grid: ti.template(), row, slot: ti.template(), x_i: ti.template
 def group_pass_function(packed, finish):
     """A ``ti.real_func`` (buffer, row, block, group, h) that sums the force on the SIMD_LANES
     particles of one group of ``packed`` (a ``PackedGrid``, packed copy ``buffer``, after the
-    forward pass of rows row − 1 and row in block ``block``: ``PackedGrid.forward_row``) as three
+    forward pass of row ``row`` and the ``rows_back`` rows before it in block ``block``:
+    ``PackedGrid.forward_row``) as three
     SIMD_LANES-vectors (x, y, z) and hands them to
     ``finish(buffer, row, group, h, f_x, f_y, f_z)``, a ``ti.func`` (``PackedGrid`` stores them
     per particle, ``EulerStep`` steps the lanes with step h [s]). The sum (the module docstring's
