@@ -31,6 +31,9 @@ PACKED_PARTICLE_MINIMUM = 1024  # below it the CSR gather is as fast and compile
 # forward pass of the rows before its first that its first reads again (one on `hula`'s
 # stencil), 1/ROWS_PER_BLOCK more of it
 ROWS_PER_BLOCK = 32
+# Taichi 1.7.4's CPU backend gives each thread a run of at least this many iterations of a
+# parallel loop: a loop over a few blocks would run on one thread (``PackedGrid.block_loop``)
+CPU_LOOP_GRAIN = 512
 
 
 @ti.data_oriented
@@ -72,6 +75,10 @@ class PackedGrid:
         self.rows_back = max([grid.slot_offsets[s][0] for s in self.forward_slots]
                              + [1 if self.face_effects else 0])
         self.ring_rows = self.rows_back + 1  # per block: a row and those its pass reads back
+        # by whether the launch is serial, the extents (blocks, spread) of the loop over the
+        # blocks, each block's work at spread 0: in parallel, ``CPU_LOOP_GRAIN`` iterations a
+        # block, so that the threads take different blocks; serially one block of one
+        self.block_loop = {True: (1, 1), False: (self.block_count, CPU_LOOP_GRAIN)}
         # per face effect, its pressure's third on the (TL, BL, BR) and (TL, BR, TR) triangles
         # of each quad [N], (x, y, z) fields of SIMD_LANES-vectors indexed [block, ring row,
         # group] (as packed copies, so ``packed_lanes`` reads them shifted); never written for
@@ -79,8 +86,9 @@ class PackedGrid:
         self.face_force = [[grid.packed_fields(model.real, self.block_count, self.ring_rows)
                             for _ in range(2)] for _ in self.face_effects]
         self.face_triples = [triple for faces in self.face_force for triple in faces]
-        # each spring's force on its forward end per forward slot [N], 0 where the slot is off
-        # the grid (the halo's too), [block, ring row, group] as the faces
+        # each spring's force on its forward end per forward slot [N], [block, ring row, group]
+        # as the faces: 0 in lanes whose neighbour is off the grid's columns (the halo's too);
+        # not written for a row whose neighbour row is off the grid (the group pass skips it)
         self.forward_force = [grid.packed_fields(model.real, self.block_count, self.ring_rows)
                               for _ in self.forward_slots]
         # per stencil effect with a dashpot (β ≠ 0 and the scene declares damping): y = x + β·v
@@ -128,12 +136,13 @@ class PackedGrid:
         (x, v) into packed copy 0, then the SIMD stencil pass, blocks of rows in parallel."""
         self.pack(x, v, 0, self.needs_velocity)
         self.make_damped(0)
-        for block in range(self.block_count):
-            first, end = self.block_rows(block, False)
-            for row in range(first, end):
-                self.forward_row(0, row, block, first, self.forward_pass)
-                for group in range(self.filled_groups[0], self.filled_groups[1]):
-                    self.group_springs(0, row, block, group, 0.0)
+        for block, spread in ti.ndrange(*self.block_loop[False]):
+            if spread == 0:
+                first, end = self.block_rows(block, False)
+                for row in range(first, end):
+                    self.forward_row(0, row, block, first, self.forward_pass)
+                    for group in range(self.filled_groups[0], self.filled_groups[1]):
+                        self.group_springs(0, row, block, group, 0.0)
 
     def _triangles_are_the_grids(self) -> bool:
         """Whether the cloth's triangles are the grid's (``cloth.topology.grid_triangles``: each

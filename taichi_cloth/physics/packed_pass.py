@@ -15,7 +15,8 @@ A substep's force evaluation is two loops over the packed groups of a ``PackedGr
    pressure on the two triangles of the row's quads (``effects.aerodynamics.plate_pressure``, a
    third of it, into ``face_force``), from the same reads of the quad's corners. Both hold a
    ring of rows per block of rows (row r in ring row r % ``PackedGrid.ring_rows``), as the group
-   pass of row r reads rows r − Δrow of the forward slots and r − 1 of the faces only.
+   pass of row r reads only rows r − Δrow (Δrow ≥ 0) of the forward slots and rows r, r − 1 of
+   the faces.
 2. The group pass (``group_pass_function``): each lane adds its forward springs' f_ij, subtracts
    the f_ji of the springs whose forward slot is at the other end (read shifted by the slot's
    offset: the reaction f_j = −f_i of a spring), adds the linear stencils of the effects that act

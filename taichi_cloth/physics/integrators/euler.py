@@ -160,8 +160,8 @@ class EulerStep(Integrator):
         one block in a serial launch, ``serial``: the kernel ``_advance_serial``), each row's
         forward pass and halo (``PackedGrid.forward_row``), then ``group_step`` for each of its
         groups and the pins set to their targets at t + h (``_step_group``; a group's sum reads
-        the forward forces of its own row and the row before: ~1.5 µs a substep less on
-        ``hula`` than two loops over the rows, the same bits). With
+        the forward forces of its own row and the ``rows_back`` rows before: ~1.5 µs a substep
+        less on ``hula`` than two loops over the rows, the same bits). With
         ``gathers_for_lanes``, first packed copy ``buffer`` unpacked into state_in, the
         effects' passes (``Forces.prepare_effects``) and the pointwise effects' forces into
         ``gathered_force``: of every particle, or with ``gathers_listed`` only of the particles
@@ -178,12 +178,13 @@ class EulerStep(Integrator):
                 self._gather_listed(x, v, t)
             else:
                 self._gather_lanes(x, v, t)
-        for block in range(1 if ti.static(self.serial) else packed.block_count):
-            first, end = packed.block_rows(block, self.serial)
-            for row in range(first, end):
-                packed.forward_row(buffer, row, block, first, self.forward_pass)
-                for group in range(packed.filled_groups[0], packed.filled_groups[1]):
-                    self._step_group(buffer, row, block, group, t, dt)
+        for block, spread in ti.ndrange(*packed.block_loop[self.serial]):
+            if spread == 0:
+                first, end = packed.block_rows(block, self.serial)
+                for row in range(first, end):
+                    packed.forward_row(buffer, row, block, first, self.forward_pass)
+                    for group in range(packed.filled_groups[0], packed.filled_groups[1]):
+                        self._step_group(buffer, row, block, group, t, dt)
         packed.refresh_halo(1 - buffer)
         if ti.static(self.gathers_listed):
             self._clear_listed()
@@ -261,15 +262,16 @@ class EulerStep(Integrator):
         self.forces.prepare_effects(state_in.x, state_in.v, t)
         packed.pack(state_in.x, state_in.v, buffer, packed.needs_velocity)
         packed.make_damped(buffer)
-        for block in range(1 if ti.static(self.serial) else packed.block_count):
-            first_row, end_row = packed.block_rows(block, self.serial)
-            for row in range(first_row, end_row):
-                packed.forward_row(buffer, row, block, first_row, packed.forward_pass)
-                for group in range(packed.filled_groups[0], packed.filled_groups[1]):
-                    packed.group_springs(buffer, row, block, group, 0.0)
-                    first, end = packed.group_particles(row, group)
-                    for i_p in range(first, end):
-                        self._update(state_in, state_out, i_p, t, dt)
+        for block, spread in ti.ndrange(*packed.block_loop[self.serial]):
+            if spread == 0:
+                first_row, end_row = packed.block_rows(block, self.serial)
+                for row in range(first_row, end_row):
+                    packed.forward_row(buffer, row, block, first_row, packed.forward_pass)
+                    for group in range(packed.filled_groups[0], packed.filled_groups[1]):
+                        packed.group_springs(buffer, row, block, group, 0.0)
+                        first, end = packed.group_particles(row, group)
+                        for i_p in range(first, end):
+                            self._update(state_in, state_out, i_p, t, dt)
 
     @ti.func
     def _update(self, state_in, state_out, i_p, t, dt):
