@@ -136,13 +136,28 @@ class PackedGrid:
         (x, v) into packed copy 0, then the SIMD stencil pass, blocks of rows in parallel."""
         self.pack(x, v, 0, self.needs_velocity)
         self.make_damped(0)
-        for block, spread in ti.ndrange(*self.block_loop[False]):
+        self.each_group(0, False, self.forward_pass, self._spring_group, (), 0.0, 0.0)
+
+    @ti.func
+    def _spring_group(self, buffer, row, block, group, states: ti.template(), t, dt):
+        """``spring_pass``'s work on a group: its sum into ``packed_force``."""
+        self.group_springs(buffer, row, block, group, 0.0)
+
+    @ti.func
+    def each_group(self, buffer, serial: ti.template(), forward_pass: ti.template(),
+                   group_work: ti.template(), states: ti.template(), t, dt):
+        """Row by row in blocks of rows (``block_rows``: in parallel, or, ``serial``, all rows
+        in one block), each row's forward pass from packed copy ``buffer`` (``forward_row``,
+        with the caller's own ``forward_pass``), then ``group_work(buffer, row, block, group,
+        states, t, dt)`` for each of its groups (``states``: what the work reads and writes
+        besides the lanes, t [s] and dt [s] its time and step)."""
+        for block, spread in ti.ndrange(*self.block_loop[serial]):
             if spread == 0:
-                first, end = self.block_rows(block, False)
+                first, end = self.block_rows(block, serial)
                 for row in range(first, end):
-                    self.forward_row(0, row, block, first, self.forward_pass)
+                    self.forward_row(buffer, row, block, first, forward_pass)
                     for group in range(self.filled_groups[0], self.filled_groups[1]):
-                        self.group_springs(0, row, block, group, 0.0)
+                        group_work(buffer, row, block, group, states, t, dt)
 
     def _triangles_are_the_grids(self) -> bool:
         """Whether the cloth's triangles are the grid's (``cloth.topology.grid_triangles``: each

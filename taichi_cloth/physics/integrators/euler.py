@@ -156,7 +156,7 @@ class EulerStep(Integrator):
 
     @ti.func
     def _lanes_substep(self, state_in, t, dt, buffer):
-        """Row by row in blocks of rows (``PackedGrid.block_rows``: in parallel, or all rows in
+        """Row by row in blocks of rows (``PackedGrid.each_group``: in parallel, or all rows in
         one block in a serial launch, ``serial``: the kernel ``_advance_serial``), each row's
         forward pass and halo (``PackedGrid.forward_row``), then ``group_step`` for each of its
         groups and the pins set to their targets at t + h (``_step_group``; a group's sum reads
@@ -178,22 +178,16 @@ class EulerStep(Integrator):
                 self._gather_listed(x, v, t)
             else:
                 self._gather_lanes(x, v, t)
-        for block, spread in ti.ndrange(*packed.block_loop[self.serial]):
-            if spread == 0:
-                first, end = packed.block_rows(block, self.serial)
-                for row in range(first, end):
-                    packed.forward_row(buffer, row, block, first, self.forward_pass)
-                    for group in range(packed.filled_groups[0], packed.filled_groups[1]):
-                        self._step_group(buffer, row, block, group, t, dt)
+        packed.each_group(buffer, self.serial, self.forward_pass, self._step_group, (), t, dt)
         packed.refresh_halo(1 - buffer)
         if ti.static(self.gathers_listed):
             self._clear_listed()
 
     @ti.func
-    def _step_group(self, buffer, row, block, group, t, dt):
+    def _step_group(self, buffer, row, block, group, states: ti.template(), t, dt):
         """``group_step`` of group ``group`` of row ``row`` (in block ``block``) from packed
         copy ``buffer`` at t [s] by dt [s], then its pinned lanes set to their targets at
-        t + dt."""
+        t + dt (``PackedGrid.each_group``'s work; no ``states``: the lanes are the state)."""
         model, packed = self.model, self.packed
         self.group_step(buffer, row, block, group, ti.cast(dt, model.real))
         if packed.group_has_pin[row, group]:
@@ -262,16 +256,19 @@ class EulerStep(Integrator):
         self.forces.prepare_effects(state_in.x, state_in.v, t)
         packed.pack(state_in.x, state_in.v, buffer, packed.needs_velocity)
         packed.make_damped(buffer)
-        for block, spread in ti.ndrange(*packed.block_loop[self.serial]):
-            if spread == 0:
-                first_row, end_row = packed.block_rows(block, self.serial)
-                for row in range(first_row, end_row):
-                    packed.forward_row(buffer, row, block, first_row, packed.forward_pass)
-                    for group in range(packed.filled_groups[0], packed.filled_groups[1]):
-                        packed.group_springs(buffer, row, block, group, 0.0)
-                        first, end = packed.group_particles(row, group)
-                        for i_p in range(first, end):
-                            self._update(state_in, state_out, i_p, t, dt)
+        packed.each_group(buffer, self.serial, packed.forward_pass, self._update_group,
+                          (state_in, state_out), t, dt)
+
+    @ti.func
+    def _update_group(self, buffer, row, block, group, states: ti.template(), t, dt):
+        """The SIMD pass's sum for group ``group`` of row ``row`` (in block ``block``), then
+        the update of its particles from states[0] into states[1] (``PackedGrid.each_group``'s
+        work in ``_packed_substep``)."""
+        packed = self.packed
+        packed.group_springs(buffer, row, block, group, 0.0)
+        first, end = packed.group_particles(row, group)
+        for i_p in range(first, end):
+            self._update(states[0], states[1], i_p, t, dt)
 
     @ti.func
     def _update(self, state_in, state_out, i_p, t, dt):
