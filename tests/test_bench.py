@@ -119,7 +119,8 @@ def test_a_whole_run_reports_its_self_collision_builds_only_with_self_collision(
     from taichi_cloth.studies.bench import report
     row = {"benchmark": "scene-run", "scene": "twirl", "size": "96x20", "integrator": "implicit",
            "simulated_seconds": 5.0, "wall_seconds": 15.4, "wall_seconds_per_simulated_second":
-           3.08, "stepping_seconds": 11.4, "checks_seconds": 4.0, "startup_seconds": 0.5, "compile_seconds": 2.0, "settle_seconds": 10.0,
+           3.08, "stepping_seconds": 11.4, "checks_seconds": 4.0, "startup_seconds": 0.5,
+           "compile_seconds": 2.0, "settle_seconds": 10.0,
            "self_intersection_ms_per_frame": 3.0, "max_self_intersections": 0}
     with_builds = report([row | {"self_collision_builds": 1040, "steps": 1200}], {})
     assert "list built 1040 times in 1200 steps" in with_builds

@@ -47,9 +47,9 @@ class PackedGrid:
     the lanes; ``forward_force`` [N]: per forward slot of the springs (``forward_slots``), the
     spring's force on its owner lane, (x, y, z) fields indexed [block, ring row, group] as
     packed copies (``packed_lanes`` reads them shifted): per block of rows a ring of
-    ``ring_rows`` rows (``packed_pass.ring_row``); ``lane_effects``: the effects whose forces the pass adds
-    (``packed_pass``): ``stencil_effects`` (``Effect.allocate_lanes``) and ``face_effects``
-    (``Effect.lane_faces``, each with its ``face_force``).
+    ``ring_rows`` rows (``packed_pass.ring_row``); ``lane_effects``: the effects whose forces
+    the pass adds (``packed_pass``): ``stencil_effects`` (``Effect.allocate_lanes``) and
+    ``face_effects`` (``Effect.lane_faces``, each with its ``face_force``).
     """
 
     def __init__(self, model, effects=(), rows_per_block: int = ROWS_PER_BLOCK):

@@ -352,7 +352,8 @@ def bench_scene_run(scene_name: str, overrides: tuple = ()) -> dict:
     record = RunRecord()
     settle(simulation, record)
     frames = simulation.scene.frame_count
-    compiled_before, stepped_before = record.wall_seconds["compile"], record.wall_seconds["simulate"]
+    compiled_before = record.wall_seconds["compile"]
+    stepped_before = record.wall_seconds["simulate"]
     started = time.perf_counter()
     simulation.run(frames, record=record)
     wall = time.perf_counter() - started - (record.wall_seconds["compile"] - compiled_before)
