@@ -148,14 +148,18 @@ class PackedGrid:
                    group_work: ti.template(), states: ti.template(), t, dt):
         """Row by row in blocks of rows (``block_rows``: in parallel, or, ``serial``, all rows
         in one block), each row's forward pass from packed copy ``buffer`` (``forward_row``,
-        with the caller's own ``forward_pass``), then ``group_work(buffer, row, block, group,
-        states, t, dt)`` for each of its groups (``states``: what the work reads and writes
-        besides the lanes, t [s] and dt [s] its time and step)."""
+        with the caller's own ``forward_pass``; first, in each block, that of the ``rows_back``
+        rows before its first that are in the grid, which its first row's groups read), then
+        ``group_work(buffer, row, block, group, states, t, dt)`` for each of its groups
+        (``states``: what the work reads and writes besides the lanes, t [s] and dt [s] its
+        time and step)."""
         for block, spread in ti.ndrange(*self.block_loop[serial]):
             if spread == 0:
                 first, end = self.block_rows(block, serial)
+                for back in range(ti.max(first - self.rows_back, 0), first):
+                    self.forward_row(buffer, back, block, forward_pass)
                 for row in range(first, end):
-                    self.forward_row(buffer, row, block, first, forward_pass)
+                    self.forward_row(buffer, row, block, forward_pass)
                     for group in range(self.filled_groups[0], self.filled_groups[1]):
                         group_work(buffer, row, block, group, states, t, dt)
 
@@ -181,17 +185,12 @@ class PackedGrid:
         return first, end
 
     @ti.func
-    def forward_row(self, buffer, row, block, first, forward_pass: ti.template()):
-        """What the group pass of row ``row`` (in block ``block``, whose first row is ``first``)
-        reads besides packed copy ``buffer`` of the state and its damped stencils' y
-        (``make_damped``), from ``forward_pass`` (``packed_pass.forward_pass_function``: the
-        caller's own): the forward springs' forces and the face effects' pressures of the row
-        (and first, at a block's first row, of the ``rows_back`` rows before it that are in the
-        grid), then their halo (``copy_forward_halo``)."""
-        if row == first:
-            for back in range(ti.max(first - self.rows_back, 0), first):
-                forward_pass(buffer, back, block)
-                self.copy_forward_halo(back, block)
+    def forward_row(self, buffer, row, block, forward_pass: ti.template()):
+        """What the group passes read of row ``row`` (into block ``block``'s ring) besides
+        packed copy ``buffer`` of the state and its damped stencils' y (``make_damped``), from
+        ``forward_pass`` (``packed_pass.forward_pass_function``: the caller's own): the forward
+        springs' forces and the face effects' pressures of the row, then their halo
+        (``copy_forward_halo``)."""
         forward_pass(buffer, row, block)
         self.copy_forward_halo(row, block)
 

@@ -152,7 +152,7 @@ def group_pass_function(packed, finish):
     """A ``ti.real_func`` (buffer, row, block, group, h) that sums the force on the SIMD_LANES
     particles of one group of ``packed`` (a ``PackedGrid``, packed copy ``buffer``, after the
     forward pass of row ``row`` and the ``rows_back`` rows before it in block ``block``:
-    ``PackedGrid.forward_row``) as three
+    ``PackedGrid.each_group``) as three
     SIMD_LANES-vectors (x, y, z) and hands them to
     ``finish(buffer, row, group, h, f_x, f_y, f_z)``, a ``ti.func`` (``PackedGrid`` stores them
     per particle, ``EulerStep`` steps the lanes with step h [s]). The sum (the module docstring's

@@ -19,7 +19,7 @@ A substep takes one of three paths, chosen at compile time:
 - packed (with a projection after each substep, ``post_step``, which moves particles in the
   unpacked state): on a packed grid (``forces.packed``, ``physics.packed_grid``) the state
   packed and the damped stencils' x + β·v, then row by row in blocks of rows the forward pass
-  (each spring's force once, the faces of its face effects: ``PackedGrid.forward_row``) and for
+  (each spring's force once, the faces of its face effects: ``PackedGrid.each_group``) and for
   each group the SIMD group pass (``physics.packed_pass``), then the update of its particles
   (any effects);
 - lanes (a packed grid without a projection): the update too runs in the SIMD lanes
