@@ -14,13 +14,14 @@ The build: each triangle's box grown by the reach and each edge's by half of it,
 cloth's patches with their partners (``effects/mesh_patches.py``: the pairs of patches that may
 hold layers of cloth, flat neighbourhoods left out); each particle walks the triangles of its
 home patch's partners (the vertex–triangle pairs: a vertex and a triangle it is not a corner of,
-whose box holds it), each edge the edges of higher index of its home patch's partners (the
-edge–edge pairs of edges sharing no particle, whose boxes overlap); then the exact distance.
-The boxes and patches are made on one thread, the partners and walks in parallel, each into its
-own row (up to ``FOUND_PER_ITEM`` finds), in a fixed order, and one thread lists the finds in
-particle order, then edge order (up to ``PAIRS_PER_ITEM`` per particle and edge; ``overflow``
-counts any dropped): the same list whatever the threads did. Every particle gets the CSR list
-of its (pair, corner) entries as 4·pair + corner, in pair order.
+whose box holds it; a partner whose box is too far from the particle is skipped whole), each
+edge the edges of higher index of its home patch's partners (the edge–edge pairs of edges
+sharing no particle, whose boxes overlap; a patch's edges and its partner's are first tested
+against the region both patches' boxes share, and only those that meet it against each other);
+then the exact distance. All on one thread: each walk into its own row (up to
+``FOUND_PER_ITEM`` finds), then the finds listed in particle order, then edge order (up to
+``PAIRS_PER_ITEM`` per particle and edge; ``overflow`` counts any dropped). Every particle gets
+the CSR list of its (pair, corner) entries as 4·pair + corner, in pair order.
 
 Each find keeps its pair's side record beside it (``pair_records.PairRecords``, mixed in).
 """
@@ -118,10 +119,11 @@ class CandidatePairs(PairRecords):
     @ti.func
     def update(self, x):
         """The list at positions x [m]: measured against the last build and, when stale, built
-        again: the boxes and the patches' cones and grid on one thread, each patch's partners
-        and each particle's and edge's walk in parallel into its own row
-        (in a fixed order: the same finds in the same order whatever the threads do), then the
-        list and the entries on one thread in particle and edge order."""
+        again, all on one thread: the boxes and the patches' cones and grid, each patch's
+        partners, each particle's walk and each patch's edges' walks into their own rows, then
+        the list and the entries in particle and edge order. (A hand-off to a second thread
+        costs ~50 µs and the second thread wakes ~0.3 ms late on the 2-core machines measured,
+        longer than these loops take: docs/performance.md, "The rebuild on one thread".)"""
         ti.loop_config(serialize=True)
         for _ in range(1):
             self._measure_deformation(x, True)
@@ -129,15 +131,12 @@ class CandidatePairs(PairRecords):
         for _ in range(1):
             if self.stale[None]:
                 self._build_boxes(x)
-        for patch in range(self.patches.count):
-            if self.stale[None]:
-                self.patches.list_partners(patch, self.overflow)
-        for i_p in range(self.model.particle_count):
-            if self.stale[None]:
-                self._list_vertex_triangle(x, i_p)
-        for e in range(self.edge_count):
-            if self.stale[None]:
-                self._list_edge_edge(x, e)
+                for patch in range(self.patches.count):
+                    self.patches.list_partners(patch, self.overflow)
+                for i_p in range(self.model.particle_count):
+                    self._list_vertex_triangle(x, i_p)
+                for patch in range(self.patches.count):
+                    self._list_edge_edge(x, patch)
         self._list(self.stale[None])
 
     @ti.func
@@ -258,11 +257,17 @@ class CandidatePairs(PairRecords):
         patches = self.patches
         self._start_row(i_p)
         home = patches.particle_home[i_p]
+        half_reach = self.model.real(0.5 * self.reach)
         if home >= 0:
             for n in range(patches.partner_count[home]):
                 partner = patches.partner[home, n]
-                for k in range(patches.triangle_start[partner],
-                               patches.triangle_start[partner + 1]):
+                # the partner's box, grown by half the reach, holds its triangles' boxes shrunk
+                # by the other half: a particle outside the box grown by that half is in none
+                first = patches.triangle_start[partner + 1]
+                if (patches.boxes.lower[partner] - half_reach <= x[i_p]).all() \
+                        and (x[i_p] <= patches.boxes.upper[partner] + half_reach).all():
+                    first = patches.triangle_start[partner]
+                for k in range(first, patches.triangle_start[partner + 1]):
                     t = patches.triangle[k]
                     corners = self.corners[t]
                     # one test of all, evaluated whole (as the edges' below)
@@ -274,31 +279,49 @@ class CandidatePairs(PairRecords):
         self._keep_crossed(i_p)
 
     @ti.func
-    def _list_edge_edge(self, x, e):
-        """Edge e's pairs with the edges of higher index of its home patch's partners whose
-        boxes overlap its own, that share no particle with it, within the reach, and its crossed
-        ones: its row of ``found``."""
+    def _list_edge_edge(self, x, p):
+        """The pairs of patch p's home edges: each edge's pairs with the edges of higher index of
+        p's partners whose boxes overlap its own, that share no particle with it, within the
+        reach, and its crossed ones: its row of ``found``. Partner by partner, only the edges
+        of either patch whose boxes meet the region that both patches' boxes share are tested
+        against each other (each patch's box holds its edges'); a row still gets its finds by
+        partner, then by the other edge's index, descending."""
         patches = self.patches
-        owner = self.model.particle_count + e
-        self._start_row(owner)
-        ends = self.ends[e]
-        home = patches.edge_home[e]  # every edge is a triangle's
-        for n in range(patches.partner_count[home]):
-            partner = patches.partner[home, n]
-            first, end = patches.edge_start[partner], patches.edge_start[partner + 1]
-            for back in range(end - first):  # a patch's edges ascend: higher ones first
-                other = patches.edge[end - 1 - back]
-                if other <= e:
+        particles = self.model.particle_count
+        first, end = patches.edge_start[p], patches.edge_start[p + 1]
+        for k in range(first, end):
+            self._start_row(particles + patches.edge[k])
+        for n in range(patches.partner_count[p]):
+            q = patches.partner[p, n]
+            low = ti.max(patches.boxes.lower[p], patches.boxes.lower[q])
+            high = ti.min(patches.boxes.upper[p], patches.boxes.upper[q])
+            meeting = 0  # bit k: p's edge first + k meets the region (a patch has ≤ 24 edges)
+            for k in range(first, end):
+                e = patches.edge[k]
+                meeting |= int((self.edge_lower[e] <= high).all()
+                               and (low <= self.edge_upper[e]).all()) << (k - first)
+            q_first, q_end = patches.edge_start[q], patches.edge_start[q + 1]
+            for back in range(q_end - q_first):  # a patch's edges ascend: higher ones first
+                other = patches.edge[q_end - 1 - back]
+                if other <= patches.edge[first]:  # above none of p's edges, nor those after
                     break
-                other_ends = self.ends[other]
-                # one test of all, evaluated whole (a kernel's ``and`` evaluates both sides)
-                if (self.edge_lower[e] <= self.edge_upper[other]).all() \
-                        and (self.edge_lower[other] <= self.edge_upper[e]).all() \
-                        and other_ends[0] != ends[0] and other_ends[0] != ends[1] \
-                        and other_ends[1] != ends[0] and other_ends[1] != ends[1]:
-                    self._consider(x, owner, other, ti.Vector(
-                        [ends[0], ends[1], other_ends[0], other_ends[1]]), EDGE_EDGE)
-        self._keep_crossed(owner)
+                if (self.edge_lower[other] <= high).all() and (low <= self.edge_upper[other]).all():
+                    other_ends = self.ends[other]
+                    bits = meeting
+                    while bits != 0:
+                        lowest = bits & -bits
+                        bits ^= lowest
+                        e = patches.edge[first + 31 - ti.math.clz(lowest)]
+                        ends = self.ends[e]
+                        # one test of all, evaluated whole (a kernel's ``and`` evaluates both)
+                        if e < other and (self.edge_lower[e] <= self.edge_upper[other]).all() \
+                                and (self.edge_lower[other] <= self.edge_upper[e]).all() \
+                                and other_ends[0] != ends[0] and other_ends[0] != ends[1] \
+                                and other_ends[1] != ends[0] and other_ends[1] != ends[1]:
+                            self._consider(x, particles + e, other, ti.Vector(
+                                [ends[0], ends[1], other_ends[0], other_ends[1]]), EDGE_EDGE)
+        for k in range(first, end):
+            self._keep_crossed(particles + patches.edge[k])
 
     @ti.func
     def _list_entries(self):

@@ -176,6 +176,9 @@ class MeshPatches:
         self.partner = ti.field(ti.i32, (self.count, self.partner_capacity))
         triangle_start, triangle_order = members(cut["triangle_patch"], self.count)
         edge_start, edge_order = members(cut["edge_home"], self.count)
+        # a patch's home edges are its triangles' (3·PATCH_TRIANGLES at most): the bits of an
+        # i32 in ``CandidatePairs._list_edge_edge``
+        assert np.diff(edge_start).max(initial=0) <= 3 * PATCH_TRIANGLES < 32
         near_start = np.concatenate([[0], np.cumsum([len(n) for n in cut["near"]])])
         near = np.array([pair for n in cut["near"] for pair in n] or [(0, 0)], np.int32)
         self._host = [(self.triangle_start, triangle_start), (self.triangle, triangle_order),
