@@ -119,7 +119,7 @@ class CandidatePairs(PairRecords):
     @ti.func
     def update(self, x):
         """The list at positions x [m]: measured against the last build and, when stale, built
-        again, all on one thread: the boxes and the patches' cones and grid, each patch's
+        again, all on one thread: the boxes and the patches' cones and sweep order, each patch's
         partners, each particle's walk and each patch's edges' walks into their own rows, then
         the list and the entries in particle and edge order. (A hand-off to a second thread
         costs ~50 µs and the second thread wakes ~0.3 ms late on the 2-core machines measured,
@@ -131,8 +131,7 @@ class CandidatePairs(PairRecords):
         for _ in range(1):
             if self.stale[None]:
                 self._build_boxes(x)
-                for patch in range(self.patches.count):
-                    self.patches.list_partners(patch, self.overflow)
+                self.patches.list_partners(self.overflow)
                 for i_p in range(self.model.particle_count):
                     self._list_vertex_triangle(x, i_p)
                 for patch in range(self.patches.count):
@@ -183,7 +182,7 @@ class CandidatePairs(PairRecords):
     def _build_boxes(self, x):
         """The build's reference positions (offsets from the centroid that the rebuild test
         took of x), the triangles' and edges' boxes at x, and the patches' cones and boxes,
-        filed in their grid (``MeshPatches``). On one thread: a hand-off to the thread pool
+        sorted for the sweep (``MeshPatches``). On one thread: a hand-off to the thread pool
         cost more than this work (~0.1 ms on ``twirl``)."""
         real = self.model.real
         self.rebuild_asked[None] = 0
@@ -203,7 +202,7 @@ class CandidatePairs(PairRecords):
             self.patches.cone(x, self.corners, patch)
         for patch in range(self.patches.count):
             self.patches.neighbourhood_cone(patch)
-        self.patches.file_boxes()
+        self.patches.sort_boxes()
 
     @ti.func
     def _find(self, owner, other, record):
@@ -264,8 +263,8 @@ class CandidatePairs(PairRecords):
                 # the partner's box, grown by half the reach, holds its triangles' boxes shrunk
                 # by the other half: a particle outside the box grown by that half is in none
                 first = patches.triangle_start[partner + 1]
-                if (patches.boxes.lower[partner] - half_reach <= x[i_p]).all() \
-                        and (x[i_p] <= patches.boxes.upper[partner] + half_reach).all():
+                if (patches.lower[partner] - half_reach <= x[i_p]).all() \
+                        and (x[i_p] <= patches.upper[partner] + half_reach).all():
                     first = patches.triangle_start[partner]
                 for k in range(first, patches.triangle_start[partner + 1]):
                     t = patches.triangle[k]
@@ -293,8 +292,8 @@ class CandidatePairs(PairRecords):
             self._start_row(particles + patches.edge[k])
         for n in range(patches.partner_count[p]):
             q = patches.partner[p, n]
-            low = ti.max(patches.boxes.lower[p], patches.boxes.lower[q])
-            high = ti.min(patches.boxes.upper[p], patches.boxes.upper[q])
+            low = ti.max(patches.lower[p], patches.lower[q])
+            high = ti.min(patches.upper[p], patches.upper[q])
             meeting = 0  # bit k: p's edge first + k meets the region (a patch has ≤ 24 edges)
             for k in range(first, end):
                 e = patches.edge[k]

@@ -22,6 +22,10 @@ Every other pair of patches whose boxes (grown by half the reach) overlap is a p
 walked primitive by primitive. (The height-field argument also needs the region's outline, seen
 along the axis, not to overlap itself, which Volino and Provot test; a nearly inextensible cloth
 this flat, a few patches across, cannot overlap itself that way, and the outline is not tested.)
+The overlapping boxes are found by sweep and prune (Baraff 1992, "Dynamic simulation of
+non-penetrating rigid bodies", PhD thesis; Cohen et al. 1995, "I-COLLIDE"): the patches sorted by
+their boxes' lower bound along one axis, by insertion from the last build's order, each meets
+those after it until one starts past its end.
 
 Cut once, on the host (``cut_patches``): breadth-first over triangles sharing an edge, from the
 lowest unassigned one, up to ``PATCH_TRIANGLES`` each; each triangle's normal is turned to agree
@@ -37,10 +41,9 @@ import math
 import numpy as np
 import taichi as ti
 
-from taichi_cloth.effects.spatial_hash import BoxGrid
-
 PATCH_TRIANGLES = 8  # triangles per patch at most: two quads by two on a grid
 FLAT_HALF_ANGLE = math.radians(60.0)  # α: a cone of normals this wide or less is flat
+SWEEP_AXIS_SWITCH = 1.25  # the sweep's axis changes to one whose spread is this much wider
 MOST_PARTNERS = 512  # partners a patch may have (or every patch, when fewer); more count as the
 # list's overflow
 NOT_FLAT = -2.0  # the room's cosine of a cone wider than α
@@ -148,7 +151,7 @@ def room_less_angle(room, cosine):
 class MeshPatches:
     """A garment's patches (module docstring), with their boxes, cones and partners at the
     positions of the last build of the candidate list (``cone``, ``neighbourhood_cone``,
-    ``file_boxes``, then ``list_partners``)."""
+    ``sort_boxes``, then ``list_partners``)."""
 
     def __init__(self, model, reach: float):
         garment = model.garment
@@ -166,7 +169,11 @@ class MeshPatches:
         near_count = sum(len(n) for n in cut["near"])
         self.near_start = ti.field(ti.i32, self.count + 1)
         self.near = ti.Vector.field(2, ti.i32, max(1, near_count))  # (patch, relation)
-        self.boxes = BoxGrid(self.count, real)  # grown by half the reach
+        # each patch's box [m], grown by half the reach; the patches in ascending order of their
+        # boxes' lower bound along the sweep's axis (x, y or z: 0, 1, 2)
+        self.lower, self.upper = (ti.Vector.field(3, real, self.count) for _ in range(2))
+        self.sweep_order = ti.field(ti.i32, self.count)
+        self.sweep_axis = ti.field(ti.i32, ())
         # each patch's cone and its neighbourhood's: the unit axis and the room α − half-angle
         # left to flat, as (cos, sin) (``NOT_FLAT`` in the cosine where the cone is wider than α)
         self.axis, self.around_axis = (ti.Vector.field(3, real, self.count) for _ in range(2))
@@ -191,7 +198,8 @@ class MeshPatches:
 
     def upload(self) -> None:
         self.model.uploads.add([(field, np.asarray(values, np.int32))
-                                for field, values in self._host])
+                                for field, values in self._host + [
+                                    (self.sweep_order, np.arange(self.count))]])
 
     @ti.func
     def cone(self, x, corners, p):
@@ -219,7 +227,7 @@ class MeshPatches:
                                               ti.static(math.sin(FLAT_HALF_ANGLE))]), cosine)
         self.axis[p], self.room[p] = axis, room
         grow = real(0.5 * self.reach)
-        self.boxes.lower[p], self.boxes.upper[p] = low - grow, high + grow
+        self.lower[p], self.upper[p] = low - grow, high + grow
 
     @ti.func
     def _unit_normal(self, x, corners, t):
@@ -258,13 +266,33 @@ class MeshPatches:
         self.around_axis[p], self.around_room[p] = axis, room
 
     @ti.func
-    def file_boxes(self):
-        """The patches' boxes (from ``cone``) filed in their grid, on cells of their mean
-        largest side. On one thread (call it under a serial loop)."""
-        size = self.model.real(0.0)
+    def sort_boxes(self):
+        """``sweep_order``: the patches by their boxes' lower bound along the sweep's axis, by
+        insertion from the last build's order (nearly sorted already: a few moves a patch). The
+        axis is the widest spread of the boxes' lower corners, kept until another's is
+        ``SWEEP_AXIS_SWITCH`` times as wide (a skirt turning about its own axis would otherwise
+        flip between x and z, and each flip re-sorts from an order along the other). On one
+        thread (call it under a serial loop)."""
+        low = ti.Vector([self.model.real(ti.math.inf)] * 3)
+        high = -low
         for p in range(self.count):
-            size += (self.boxes.upper[p] - self.boxes.lower[p]).max()
-        self.boxes.build(size / ti.max(self.count, 1))
+            low, high = ti.min(low, self.lower[p]), ti.max(high, self.lower[p])
+        spread = high - low
+        axis = self.sweep_axis[None]
+        for a in ti.static(range(3)):
+            if spread[a] > self.model.real(SWEEP_AXIS_SWITCH) * along(spread, axis):
+                axis = a
+        self.sweep_axis[None] = axis
+        for k in range(1, self.count):
+            p = self.sweep_order[k]
+            key = along(self.lower[p], axis)
+            j = k
+            while j > 0:
+                if along(self.lower[self.sweep_order[j - 1]], axis) <= key:
+                    break
+                self.sweep_order[j] = self.sweep_order[j - 1]
+                j -= 1
+            self.sweep_order[j] = p
 
     @ti.func
     def _relation(self, p, q) -> ti.i32:
@@ -304,25 +332,58 @@ class MeshPatches:
         return result
 
     @ti.func
-    def list_partners(self, p, overflow: ti.template()):
-        """Patch p's partners (itself included when not flat): the patches whose boxes overlap
-        its own, each once (in the first grid cell both span), that ``culled`` keeps; past
-        ``partner_capacity`` (every patch, or ``MOST_PARTNERS``), counted in ``overflow``."""
-        grid = self.boxes
-        self.partner_count[p] = 0
-        if grid.filed[None]:
-            low, high = grid.low_cell[p], grid.high_cell[p]
-            for cell in ti.grouped(ti.ndrange((low[0], high[0] + 1), (low[1], high[1] + 1),
-                                              (low[2], high[2] + 1))):
-                bucket = grid.bucket(cell)
-                for k in range(grid.bucket_start[bucket], grid.bucket_start[bucket + 1]):
-                    q = grid.entry_box[k]
-                    if (grid.entry_cell[k] == cell).all() and grid.overlap(p, q) \
-                            and (grid.first_common_cell(p, q) == cell).all():
-                        if not self.culled(p, q):
-                            n = self.partner_count[p]
-                            if n < ti.static(self.partner_capacity):
-                                self.partner[p, n] = q
-                                self.partner_count[p] = n + 1
-                            else:
-                                ti.atomic_add(overflow[None], 1)
+    def list_partners(self, overflow: ti.template()):
+        """Every patch's partners (itself included when not flat), ascending: the patches whose
+        boxes overlap its own that ``culled`` keeps, found by a sweep along ``sweep_order`` (each
+        patch meets the patches after it until one's lower bound passes its upper; ``culled`` is
+        symmetric, so each pair is tested once and listed on both sides); past
+        ``partner_capacity`` (every patch, or ``MOST_PARTNERS``), counted in ``overflow``. On one
+        thread (call it under a serial loop)."""
+        for p in range(self.count):
+            self.partner_count[p] = 0
+            if self.culled(p, p) == 0:
+                self._add_partner(p, p, overflow)
+        axis = self.sweep_axis[None]
+        for k in range(self.count):
+            p = self.sweep_order[k]
+            end = along(self.upper[p], axis)
+            for j in range(k + 1, self.count):
+                q = self.sweep_order[j]
+                if along(self.lower[q], axis) > end:
+                    break
+                overlap = (self.lower[p] <= self.upper[q]).all() \
+                    and (self.lower[q] <= self.upper[p]).all()
+                if overlap:
+                    if self.culled(p, q) == 0:
+                        self._add_partner(p, q, overflow)
+                        self._add_partner(q, p, overflow)
+        for p in range(self.count):  # ascending: an order that does not depend on the sweep's
+            for k in range(1, self.partner_count[p]):
+                q = self.partner[p, k]
+                j = k
+                while j > 0:
+                    if self.partner[p, j - 1] < q:
+                        break
+                    self.partner[p, j] = self.partner[p, j - 1]
+                    j -= 1
+                self.partner[p, j] = q
+
+    @ti.func
+    def _add_partner(self, p, q, overflow: ti.template()):
+        """q into p's partners, or counted in ``overflow`` when they are full."""
+        n = self.partner_count[p]
+        if n < ti.static(self.partner_capacity):
+            self.partner[p, n] = q
+            self.partner_count[p] = n + 1
+        else:
+            ti.atomic_add(overflow[None], 1)
+
+
+@ti.func
+def along(vector, axis):
+    """Component ``axis`` (0, 1 or 2, known at run time) of a 3-vector."""
+    value = vector[0]
+    for a in ti.static(range(1, 3)):
+        if axis == a:
+            value = vector[a]
+    return value

@@ -16,7 +16,8 @@ The host class provides ``model``, ``found``/``found_count`` (the walks' rows), 
 import taichi as ti
 
 from taichi_cloth.effects import crossing_history
-from taichi_cloth.effects.proximity import (VERTEX_TRIANGLE, edge_edge_geometry, pair_side,
+from taichi_cloth.effects.proximity import (VERTEX_TRIANGLE, closest_offset, edge_edge_geometry,
+                                             pair_side,
                                             vertex_triangle_geometry)
 
 
@@ -76,29 +77,20 @@ class PairRecords:
         the row if within the reach at x, with its side record: the one it held before this
         rebuild, or for a new pair the one it would have had at the last finished step at which
         the list was whole (``reference_x``; ``crossing_history.UNKNOWN`` before the first
-        step). One inlined closest-point computation serves both positions (a loop of two
-        rounds at run time: each copy of it costs compile time in every kernel that builds)."""
-        geometry = ti.static(vertex_triangle_geometry if kind == VERTEX_TRIANGLE
-                             else edge_edge_geometry)
-        new = 0
-        for at_reference in range(2):
-            if at_reference == 0 or new:
-                first, second, third, fourth = x[ids[0]], x[ids[1]], x[ids[2]], x[ids[3]]
-                if at_reference:
-                    first, second, third, fourth = (self.reference_x[ids[0]],
-                                                    self.reference_x[ids[1]],
-                                                    self.reference_x[ids[2]],
-                                                    self.reference_x[ids[3]])
-                _share, inside, _normal, height, offset = geometry(first, second, third, fourth,
-                                                                   self.model.real)
-                if at_reference:
-                    self._find(owner, other, crossing_history.record_from_here(inside, height))
-                elif offset.norm() <= self.model.real(self.reach):
-                    record, held = self._held_record(owner, other)
-                    if not held and self.committed[None]:
-                        new = 1
-                    else:
-                        self._find(owner, other, record)
+        step). Most candidates are beyond the reach: their closest points alone are computed
+        (``closest_offset``), the side at ``reference_x`` only for a new pair."""
+        real = self.model.real
+        offset = closest_offset(kind, x[ids[0]], x[ids[1]], x[ids[2]], x[ids[3]], real)
+        if offset.norm_sqr() <= real(self.reach * self.reach):
+            record, held = self._held_record(owner, other)
+            if not held and self.committed[None]:
+                geometry = ti.static(vertex_triangle_geometry if kind == VERTEX_TRIANGLE
+                                     else edge_edge_geometry)
+                _share, inside, _normal, height, _offset = geometry(
+                    self.reference_x[ids[0]], self.reference_x[ids[1]],
+                    self.reference_x[ids[2]], self.reference_x[ids[3]], real)
+                record = crossing_history.record_from_here(inside, height)
+            self._find(owner, other, record)
 
     @ti.func
     def _keep_crossed(self, owner):

@@ -66,6 +66,21 @@ def closest_between_segments(a, b, c, d, real: ti.template()):
 
 
 @ti.func
+def closest_offset(kind: ti.template(), first, second, third, fourth, real: ti.template()):
+    """The offset [m] between the closest points of the pair of ``kind`` with its four points at
+    ``first`` … ``fourth``, the first primitive's minus the second's: the last value of
+    ``vertex_triangle_geometry`` or ``edge_edge_geometry`` without their normal (no root)."""
+    offset = ti.Vector.zero(real, 3)
+    if ti.static(kind == VERTEX_TRIANGLE):
+        weights = closest_on_triangle(first, second, third, fourth, real)
+        offset = first - (weights[0] * second + weights[1] * third + weights[2] * fourth)
+    else:
+        s, u = closest_between_segments(first, second, third, fourth, real)
+        offset = (first + s * (second - first)) - (third + u * (fourth - third))
+    return offset
+
+
+@ti.func
 def vertex_triangle_geometry(p, a, b, c, real: ti.template()):
     """Point p against triangle (a, b, c) [m]: (the shares (1, −w_a, −w_b, −w_c) of the offset,
     w the barycentric weights of the triangle's point closest to p; whether that point lies
