@@ -22,7 +22,7 @@ in any order.
 import numpy as np
 import taichi as ti
 
-from taichi_cloth.effects.spatial_hash import hash_cell, power_of_two_at_least
+from taichi_cloth.physics.spatial_hash import hash_cell, power_of_two_at_least
 
 HASH_LOAD = 2  # hash buckets per triangle (rounded up to a power of two)
 FILINGS_PER_TRIANGLE = 8  # a triangle's box filed under this many cells at most, on average
