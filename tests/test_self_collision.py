@@ -739,6 +739,45 @@ def test_which_pairs_of_patches_are_left_out_agrees_with_the_cones_computed_apar
         assert left_out[("common", True)] > 0 and left_out[("common", False)] > 0
 
 
+def test_each_build_lists_every_pair_of_overlapping_patches_the_cones_keep_in_order():
+    """Each patch's partners against every pair of patches' boxes tested in NumPy (each patch's
+    triangles' corners, grown by half the reach), less the pairs ``culled`` leaves out (checked
+    against the cones computed apart above), in ascending order; over builds of the folded
+    sheet turned so that the widest axis, and so the sweep's, changes at each (each build sorts
+    the patches from the last one's order along another axis), then waved along z by x, so
+    that the patches' order along z is shuffled."""
+    model, forces, state, out, effect = folded_sheet_physics(12, 0.0915)
+    folded = folded_positions(model, 0.004, 0.001)
+    waved = folded + np.outer(0.04 * np.sin(300.0 * folded[:, 0]), [0.0, 0.0, 1.0])
+    patches = effect.pairs.patches
+    turns = [np.eye(3), np.array([[0.0, 0, 1], [0, 1, 0], [-1, 0, 0]]),  # about y
+             np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]])]  # about x
+    triangles, triangle_patch = model.garment.triangles, patches.triangle_patch
+    axes = []
+    for x in [folded @ turn.T + np.array([0.3, -0.2, 0.1]) for turn in turns] + [waved]:
+        state.x.from_numpy(x)
+        state.v.fill(0.0)
+        effect.pairs.ask_rebuild()
+        forces.evaluate(state.x, state.v, 0.0, out)
+        axes.append(int(patches.sweep_axis[None]))
+        corners = x[triangles]
+        grow = 0.5 * effect.reach
+        lower = np.array([corners[triangle_patch == p].reshape(-1, 3).min(axis=0) - grow
+                          for p in range(patches.count)])
+        upper = np.array([corners[triangle_patch == p].reshape(-1, 3).max(axis=0) + grow
+                          for p in range(patches.count)])
+        overlap = ((lower[:, None] <= upper[None]) & (lower[None] <= upper[:, None])).all(axis=2)
+        culled = np.zeros((patches.count, patches.count), np.int32)
+        culled_pairs_of_patches(patches, culled)
+        listed = patches.partner.to_numpy()
+        counts = patches.partner_count.to_numpy()
+        kept = overlap & (culled == 0)
+        assert kept.sum() > patches.count  # the fold's layers: partners beyond themselves
+        for p in range(patches.count):
+            assert list(listed[p, :counts[p]]) == list(np.flatnonzero(kept[p])), p
+    assert axes == [2, 0, 1, 2]  # the sheet's widest spread along z, then x, then y, then z
+
+
 def test_a_fold_through_triangles_wound_the_other_way_is_listed_the_same():
     """The folded sheet whose turned-over half's triangles are wound the other way (their raw
     normals then agree with the layer under them): the same pairs listed as when wound alike
