@@ -297,14 +297,13 @@ class MeshPatches:
     @ti.func
     def _relation(self, p, q) -> ti.i32:
         """How patch q is related to patch p: ``SHARES_PARTICLE``, ``SHARES_NEIGHBOUR`` or
-        ``NOT_NEAR`` (a binary search of p's near patches, ascending)."""
+        ``NOT_NEAR`` (a binary search of p's near patches, ascending; each halving a select, not
+        a branch, which would go either way at random)."""
         low, high = self.near_start[p], self.near_start[p + 1]
         while low < high:
             middle = (low + high) // 2
-            if self.near[middle][0] < q:
-                low = middle + 1
-            else:
-                high = middle
+            below = self.near[middle][0] < q
+            low, high = ti.select(below, middle + 1, low), ti.select(below, high, middle)
         relation = NOT_NEAR
         if low < self.near_start[p + 1] and self.near[low][0] == q:
             relation = self.near[low][1]
