@@ -161,6 +161,8 @@ class MeshPatches:
         real = model.real
         self.triangle_start = ti.field(ti.i32, self.count + 1)
         self.triangle = ti.field(ti.i32, len(garment.triangles))
+        # scratch of ``cone``: each triangle's unit normal, in the patches' order of ``triangle``
+        self.unit_normal = ti.Vector.field(3, real, len(garment.triangles))
         self.edge_start = ti.field(ti.i32, self.count + 1)
         self.edge = ti.field(ti.i32, len(garment.edges))
         self.triangle_sign = ti.field(ti.i32, len(garment.triangles))  # ``orient``
@@ -213,14 +215,15 @@ class MeshPatches:
         low = ti.Vector([real(ti.math.inf)] * 3)
         high = -low
         for k in range(self.triangle_start[p], self.triangle_start[p + 1]):
-            total += self._unit_normal(x, corners, self.triangle[k])
+            self.unit_normal[k] = self._unit_normal(x, corners, self.triangle[k])
+            total += self.unit_normal[k]
             for j in ti.static(range(3)):
                 low = ti.min(low, x[corners[self.triangle[k]][j]])
                 high = ti.max(high, x[corners[self.triangle[k]][j]])
         axis = total / ti.max(total.norm(), real(1e-30))
         cosine = real(1.0)  # cos h
         for k in range(self.triangle_start[p], self.triangle_start[p + 1]):
-            cosine = ti.min(cosine, axis.dot(self._unit_normal(x, corners, self.triangle[k])))
+            cosine = ti.min(cosine, axis.dot(self.unit_normal[k]))
         room = ti.Vector([real(NOT_FLAT), 0.0])
         if cosine >= ti.static(math.cos(FLAT_HALF_ANGLE)):  # α less h
             room = room_less_angle(ti.Vector([ti.static(math.cos(FLAT_HALF_ANGLE)),
