@@ -300,25 +300,33 @@ class CandidatePairs(PairRecords):
                 meeting |= int((self.edge_lower[e] <= high).all()
                                and (low <= self.edge_upper[e]).all()) << (k - first)
             q_first, q_end = patches.edge_start[q], patches.edge_start[q + 1]
-            for back in range(q_end - q_first):  # a patch's edges ascend: higher ones first
-                other = patches.edge[q_end - 1 - back]
-                if other <= patches.edge[first]:  # above none of p's edges, nor those after
-                    break
-                if (self.edge_lower[other] <= high).all() and (low <= self.edge_upper[other]).all():
-                    other_ends = self.ends[other]
-                    bits = meeting
-                    while bits != 0:
-                        lowest = bits & -bits
-                        bits ^= lowest
-                        e = patches.edge[first + 31 - ti.math.clz(lowest)]
-                        ends = self.ends[e]
-                        # one test of all, evaluated whole (a kernel's ``and`` evaluates both)
-                        if e < other and (self.edge_lower[e] <= self.edge_upper[other]).all() \
-                                and (self.edge_lower[other] <= self.edge_upper[e]).all() \
-                                and other_ends[0] != ends[0] and other_ends[0] != ends[1] \
-                                and other_ends[1] != ends[0] and other_ends[1] != ends[1]:
-                            self._consider(x, particles + e, other, ti.Vector(
-                                [ends[0], ends[1], other_ends[0], other_ends[1]]), EDGE_EDGE)
+            theirs = 0  # bit k: q's edge q_first + k meets the region, above p's lowest edge
+            for k in range(q_first, q_end):
+                other = patches.edge[k]
+                theirs |= int(other > patches.edge[first] and (self.edge_lower[other] <= high).all()
+                              and (low <= self.edge_upper[other]).all()) << (k - q_first)
+            while theirs != 0:  # q's edges ascend: the highest bit, the highest edge, first
+                highest = 31 - ti.math.clz(theirs)
+                theirs ^= 1 << highest
+                other = patches.edge[q_first + highest]
+                other_ends = self.ends[other]
+                near = 0  # bit k: p's edge first + k is a candidate with ``other``
+                for k in range(first, end):
+                    e = patches.edge[k]
+                    ends = self.ends[e]
+                    near |= int((meeting >> (k - first)) & 1 == 1 and e < other
+                                and (self.edge_lower[e] <= self.edge_upper[other]).all()
+                                and (self.edge_lower[other] <= self.edge_upper[e]).all()
+                                and other_ends[0] != ends[0] and other_ends[0] != ends[1]
+                                and other_ends[1] != ends[0] and other_ends[1] != ends[1]) \
+                        << (k - first)
+                while near != 0:
+                    lowest = near & -near
+                    near ^= lowest
+                    e = patches.edge[first + 31 - ti.math.clz(lowest)]
+                    ends = self.ends[e]
+                    self._consider(x, particles + e, other, ti.Vector(
+                        [ends[0], ends[1], other_ends[0], other_ends[1]]), EDGE_EDGE)
         for k in range(first, end):
             self._keep_crossed(particles + patches.edge[k])
 
