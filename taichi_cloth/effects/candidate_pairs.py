@@ -256,15 +256,17 @@ class CandidatePairs(PairRecords):
         patches = self.patches
         self._start_row(i_p)
         home = patches.particle_home[i_p]
-        half_reach = self.model.real(0.5 * self.reach)
+        # the reach's other half and a tenth of it: rounding cannot then put a point of a
+        # triangle's box (its corners' least less the reach) outside the patch's box grown so
+        beyond = self.model.real(0.6 * self.reach)
         if home >= 0:
             for n in range(patches.partner_count[home]):
                 partner = patches.partner[home, n]
                 # the partner's box, grown by half the reach, holds its triangles' boxes shrunk
-                # by the other half: a particle outside the box grown by that half is in none
+                # by the other half: a particle outside the box grown by more is in none
                 first = patches.triangle_start[partner + 1]
-                if (patches.lower[partner] - half_reach <= x[i_p]).all() \
-                        and (x[i_p] <= patches.upper[partner] + half_reach).all():
+                if (patches.lower[partner] - beyond <= x[i_p]).all() \
+                        and (x[i_p] <= patches.upper[partner] + beyond).all():
                     first = patches.triangle_start[partner]
                 for k in range(first, patches.triangle_start[partner + 1]):
                     t = patches.triangle[k]
@@ -290,7 +292,7 @@ class CandidatePairs(PairRecords):
         first, end = patches.edge_start[p], patches.edge_start[p + 1]
         for k in range(first, end):
             self._start_row(particles + patches.edge[k])
-        for n in range(patches.partner_count[p]):
+        for n in range(patches.partner_count[p] * int(first < end)):  # (a patch may own none)
             q = patches.partner[p, n]
             low = ti.max(patches.lower[p], patches.lower[q])
             high = ti.min(patches.upper[p], patches.upper[q])

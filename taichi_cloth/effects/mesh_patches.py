@@ -176,6 +176,7 @@ class MeshPatches:
         self.lower, self.upper = (ti.Vector.field(3, real, self.count) for _ in range(2))
         self.sweep_order = ti.field(ti.i32, self.count)
         self.sweep_axis = ti.field(ti.i32, ())
+        self.swept = ti.field(ti.i32, ())  # whether the last build's boxes were all finite
         # each patch's cone and its neighbourhood's: the unit axis and the room α − half-angle
         # left to flat, as (cos, sin) (``NOT_FLAT`` in the cosine where the cone is wider than α)
         self.axis, self.around_axis = (ti.Vector.field(3, real, self.count) for _ in range(2))
@@ -274,13 +275,17 @@ class MeshPatches:
         insertion from the last build's order (nearly sorted already: a few moves a patch). The
         axis is the widest spread of the boxes' lower corners, kept until another's is
         ``SWEEP_AXIS_SWITCH`` times as wide (a skirt turning about its own axis would otherwise
-        flip between x and z, and each flip re-sorts from an order along the other). On one
-        thread (call it under a serial loop)."""
+        flip between x and z, and each flip re-sorts from an order along the other). ``swept``
+        when every box is finite; a cloth with non-finite positions (a run gone unstable, which
+        its frame's guard stops) lists no partners. On one thread (call it under a serial
+        loop)."""
         low = ti.Vector([self.model.real(ti.math.inf)] * 3)
-        high = -low
+        high, reach = -low, -low
         for p in range(self.count):
             low, high = ti.min(low, self.lower[p]), ti.max(high, self.lower[p])
+            reach = ti.max(reach, self.upper[p])
         spread = high - low
+        self.swept[None] = int((reach - low < ti.math.inf).all())  # false for NaN too
         axis = self.sweep_axis[None]
         for a in ti.static(range(3)):
             if spread[a] > self.model.real(SWEEP_AXIS_SWITCH) * along(spread, axis):
@@ -343,10 +348,10 @@ class MeshPatches:
         thread (call it under a serial loop)."""
         for p in range(self.count):
             self.partner_count[p] = 0
-            if self.culled(p, p) == 0:
+            if self.swept[None] and self.culled(p, p) == 0:
                 self._add_partner(p, p, overflow)
         axis = self.sweep_axis[None]
-        for k in range(self.count):
+        for k in range(self.count * self.swept[None]):
             p = self.sweep_order[k]
             end = along(self.upper[p], axis)
             for j in range(k + 1, self.count):
@@ -372,13 +377,21 @@ class MeshPatches:
 
     @ti.func
     def _add_partner(self, p, q, overflow: ti.template()):
-        """q into p's partners, or counted in ``overflow`` when they are full."""
+        """q into p's partners; when they are full, counted in ``overflow``, and q takes the
+        place of the highest partner if it is lower: the partners kept are the lowest, whatever
+        order the sweep met them in (which follows the builds before)."""
         n = self.partner_count[p]
         if n < ti.static(self.partner_capacity):
             self.partner[p, n] = q
             self.partner_count[p] = n + 1
         else:
             ti.atomic_add(overflow[None], 1)
+            highest = 0
+            for k in range(1, n):
+                if self.partner[p, k] > self.partner[p, highest]:
+                    highest = k
+            if q < self.partner[p, highest]:
+                self.partner[p, highest] = q
 
 
 @ti.func
