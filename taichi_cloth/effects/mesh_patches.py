@@ -280,12 +280,12 @@ class MeshPatches:
         its frame's guard stops) lists no partners. On one thread (call it under a serial
         loop)."""
         low = ti.Vector([self.model.real(ti.math.inf)] * 3)
-        high, reach = -low, -low
+        high, top = -low, -low  # the lower corners' extent, the upper corners' highest
         for p in range(self.count):
             low, high = ti.min(low, self.lower[p]), ti.max(high, self.lower[p])
-            reach = ti.max(reach, self.upper[p])
+            top = ti.max(top, self.upper[p])
         spread = high - low
-        self.swept[None] = int((reach - low < ti.math.inf).all())  # false for NaN too
+        self.swept[None] = int((top - low < ti.math.inf).all())  # false for NaN too
         axis = self.sweep_axis[None]
         for a in ti.static(range(3)):
             if spread[a] > self.model.real(SWEEP_AXIS_SWITCH) * along(spread, axis):
