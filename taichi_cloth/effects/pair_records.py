@@ -17,8 +17,7 @@ import taichi as ti
 
 from taichi_cloth.effects import crossing_history
 from taichi_cloth.effects.proximity import (VERTEX_TRIANGLE, closest_offset, edge_edge_geometry,
-                                             pair_side,
-                                            vertex_triangle_geometry)
+                                            pair_side, vertex_triangle_geometry)
 
 
 @ti.data_oriented

@@ -10,8 +10,9 @@ VERTEX_TRIANGLE, EDGE_EDGE = 0, 1  # kinds of pairs
 
 @ti.func
 def closest_on_triangle(p, a, b, c, real: ti.template()):
-    """Barycentric weights (w_a, w_b, w_c) of the point of triangle (a, b, c) closest to p
-    (Ericson §5.1.5: the Voronoi regions of its vertices, edges and face)."""
+    """(the barycentric weights (w_a, w_b, w_c) of the point of triangle (a, b, c) closest to p
+    (Ericson §5.1.5: the Voronoi regions of its vertices, edges and face); the offset [m], p
+    minus that point)."""
     ab, ac = b - a, c - a
     d1, d2 = ab.dot(p - a), ac.dot(p - a)
     d3, d4 = ab.dot(p - b), ac.dot(p - b)
@@ -36,13 +37,14 @@ def closest_on_triangle(p, a, b, c, real: ti.template()):
     else:
         scale = 1 / (va + vb + vc)
         weights = ti.Vector([1 - (vb + vc) * scale, vb * scale, vc * scale], real)
-    return weights
+    return weights, p - (weights[0] * a + weights[1] * b + weights[2] * c)
 
 
 @ti.func
 def closest_between_segments(a, b, c, d, real: ti.template()):
-    """Parameters (s, u) ∈ [0, 1]² of the closest points a + s·(b − a) and c + u·(d − c) of two
-    segments (Ericson §5.1.9; parallel segments take s = 0)."""
+    """(the parameters s, u ∈ [0, 1] of the closest points a + s·(b − a) and c + u·(d − c) of
+    two segments (Ericson §5.1.9; parallel segments take s = 0); the offset [m], the first
+    closest point minus the second)."""
     d1, d2, r = b - a, d - c, a - c
     aa, ee, f = d1.dot(d1), d2.dot(d2), d2.dot(r)
     s, u = real(0.0), real(0.0)
@@ -62,7 +64,7 @@ def closest_between_segments(a, b, c, d, real: ti.template()):
         u = ti.min(ti.max(f / ee, 0.0), 1.0)
     elif aa > 1e-30:
         s = ti.min(ti.max(-d1.dot(r) / aa, 0.0), 1.0)
-    return s, u
+    return s, u, (a + s * d1) - (c + u * d2)
 
 
 @ti.func
@@ -72,11 +74,9 @@ def closest_offset(kind: ti.template(), first, second, third, fourth, real: ti.t
     ``vertex_triangle_geometry`` or ``edge_edge_geometry`` without their normal (no root)."""
     offset = ti.Vector.zero(real, 3)
     if ti.static(kind == VERTEX_TRIANGLE):
-        weights = closest_on_triangle(first, second, third, fourth, real)
-        offset = first - (weights[0] * second + weights[1] * third + weights[2] * fourth)
+        _weights, offset = closest_on_triangle(first, second, third, fourth, real)
     else:
-        s, u = closest_between_segments(first, second, third, fourth, real)
-        offset = (first + s * (second - first)) - (third + u * (fourth - third))
+        _s, _u, offset = closest_between_segments(first, second, third, fourth, real)
     return offset
 
 
@@ -86,8 +86,7 @@ def vertex_triangle_geometry(p, a, b, c, real: ti.template()):
     w the barycentric weights of the triangle's point closest to p; whether that point lies
     inside the face, every weight > 0, as 1 or 0; the face's unit normal (b − a)×(c − a)/|…|,
     0 for a degenerate triangle; the offset along it [m]; the offset, p minus that point [m])."""
-    weights = closest_on_triangle(p, a, b, c, real)
-    offset = p - (weights[0] * a + weights[1] * b + weights[2] * c)
+    weights, offset = closest_on_triangle(p, a, b, c, real)
     area_normal = (b - a).cross(c - a)
     size = area_normal.norm()
     normal = ti.Vector.zero(real, 3)
@@ -107,8 +106,7 @@ def edge_edge_geometry(a, b, c, d, real: ti.template()):
     edges, 0 < s, u < 1, the edges not parallel, as 1 or 0; the unit normal
     (b − a)×(d − c)/|…|, 0 when parallel; the offset along it [m]; the offset, the first
     closest point minus the second [m])."""
-    s, u = closest_between_segments(a, b, c, d, real)
-    offset = (a + s * (b - a)) - (c + u * (d - c))
+    s, u, offset = closest_between_segments(a, b, c, d, real)
     first_axis, second_axis = b - a, d - c
     crossing = first_axis.cross(second_axis)
     size = crossing.norm()
