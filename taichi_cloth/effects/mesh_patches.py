@@ -344,8 +344,8 @@ class MeshPatches:
         boxes overlap its own that ``culled`` keeps, found by a sweep along ``sweep_order`` (each
         patch meets the patches after it until one's lower bound passes its upper; ``culled`` is
         symmetric, so each pair is tested once and listed on both sides); past
-        ``partner_capacity`` (every patch, or ``MOST_PARTNERS``), counted in ``overflow``. On one
-        thread (call it under a serial loop)."""
+        ``partner_capacity`` (every patch, or ``MOST_PARTNERS``), counted in ``overflow``
+        (``_add_partner``). On one thread (call it under a serial loop)."""
         for p in range(self.count):
             self.partner_count[p] = 0
             if self.swept[None] and self.culled(p, p) == 0:
@@ -364,34 +364,27 @@ class MeshPatches:
                     if self.culled(p, q) == 0:
                         self._add_partner(p, q, overflow)
                         self._add_partner(q, p, overflow)
-        for p in range(self.count):  # ascending: an order that does not depend on the sweep's
-            for k in range(1, self.partner_count[p]):
-                q = self.partner[p, k]
-                j = k
-                while j > 0:
-                    if self.partner[p, j - 1] < q:
-                        break
-                    self.partner[p, j] = self.partner[p, j - 1]
-                    j -= 1
-                self.partner[p, j] = q
 
     @ti.func
     def _add_partner(self, p, q, overflow: ti.template()):
-        """q into p's partners; when they are full, counted in ``overflow``, and q takes the
-        place of the highest partner if it is lower: the partners kept are the lowest, whatever
-        order the sweep met them in (which follows the builds before)."""
+        """q into p's partners, kept ascending (an order that does not depend on the sweep's,
+        which follows the builds before); when they are full, counted in ``overflow``, and the
+        highest dropped if q is lower: the partners kept are the lowest, whatever the order the
+        sweep met them in."""
         n = self.partner_count[p]
-        if n < ti.static(self.partner_capacity):
-            self.partner[p, n] = q
-            self.partner_count[p] = n + 1
-        else:
+        if n == ti.static(self.partner_capacity):
             ti.atomic_add(overflow[None], 1)
-            highest = 0
-            for k in range(1, n):
-                if self.partner[p, k] > self.partner[p, highest]:
-                    highest = k
-            if q < self.partner[p, highest]:
-                self.partner[p, highest] = q
+            if q < self.partner[p, n - 1]:
+                n -= 1
+        if n < ti.static(self.partner_capacity):
+            j = n
+            while j > 0:
+                if self.partner[p, j - 1] < q:
+                    break
+                self.partner[p, j] = self.partner[p, j - 1]
+                j -= 1
+            self.partner[p, j] = q
+            self.partner_count[p] = n + 1
 
 
 @ti.func
