@@ -265,6 +265,36 @@ def test_a_frame_sunk_past_redo_penetration_is_redone_at_a_smaller_step():
     assert frame.max_penetration == reference_frame.max_penetration > 0.01
 
 
+@pytest.mark.parametrize("mended_at, halvings, crossings", [(8, 3, 0), (32, 4, 1)])
+def test_a_frame_that_tunnelled_is_redone_while_it_does_down_to_a_sixteenth_of_the_step(
+        monkeypatch, mended_at, halvings, crossings):
+    """A frame that ends with more pairs of triangles through each other than it began with is
+    redone at dt/2, dt/4, dt/8 and dt/16 while it still does (the crossings here counted as
+    one at any step above dt/``mended_at``, none below): the kept state is, bit for bit, that
+    frame at the last step tried, its crossings those of that try, and the run's step comes
+    back afterwards. With ``redo_strain`` below any strain as well, the strain guard still
+    stops at dt/4 and counts only its own halvings."""
+    base = ("cloth.resolution=[6, 6]", "simulation.integrator=symplectic")  # dt "auto"
+    guarded = Simulation(load_scene("sheet", base + ("simulation.redo_strain=1e-9",)))
+    dt = guarded.time_step.dt
+    start = guarded.positions()
+
+    def count(positions):  # none at the start, then one while the step is too long
+        if np.array_equal(positions, start):
+            return 0
+        return int(guarded.time_step.dt > dt / mended_at * (1 + 1e-9))
+
+    monkeypatch.setattr(guarded, "guards_crossings", True)
+    monkeypatch.setattr(guarded.intersections, "count", count)
+    frame = guarded.run(1).frames[1]
+    assert frame.extra["tunnelling_halvings"] == halvings and guarded.time_step.dt == dt
+    assert frame.extra["strain_halvings"] in (1, 2)
+    assert frame.self_intersections == crossings
+    reference = Simulation(load_scene("sheet", base + (f"simulation.dt={dt / 2 ** halvings!r}",)))
+    reference.run(1)
+    np.testing.assert_array_equal(guarded.positions(), reference.positions())
+
+
 def test_each_guard_counts_only_the_halvings_it_asked_for(monkeypatch):
     """With both redo guards on (a self-collision scene with ``redo_strain``), a frame redone
     because it stretched past ``redo_strain`` counts as a strain halving, not a tunnelling one

@@ -43,7 +43,9 @@ from taichi_cloth.physics.snapshot import Snapshot
 from taichi_cloth.physics.timestep import TimeStep, choose_time_step
 from taichi_cloth.runtime import start_taichi
 
-REDO_HALVINGS = 2  # a frame that tunnelled, overstretched or sank in is redone at dt/2, then dt/4
+REDO_HALVINGS = 2  # a frame that overstretched or sank in is redone at dt/2, then dt/4
+TUNNELLING_HALVINGS = 4  # a frame that tunnelled: down to dt/16 while it still does (a layer
+# must not cross the band in a step: 1 mm at 4 m/s is 1/4,000 s, `twirl`'s 1/240 s over 16)
 REDO_GAIN = 0.9  # a halving that leaves the strain (or depth) above this fraction of the try
 # before it shows one the step does not make (a tight garment): the frame is not halved again
 
@@ -274,14 +276,14 @@ class Simulation:
     def _advance_refining(self, frame: int, record: RunRecord, still: bool):
         """One try at ``frame`` from the backed-up state: (problem or None, x, v, crossing pairs
         or None, the halvings of each guard, x's largest stretch strain or None, its surface
-        samples' depths or None). A frame is redone at half the step, then a quarter
-        (``REDO_HALVINGS``), the last try kept (its crossings, strain and depths in the
-        metrics), when it ends
+        samples' depths or None). A frame is redone at half the step, the last try kept (its
+        crossings, strain and depths in the metrics), while it ends
         - with more pairs of triangles through each other than it began with, even after the
-          effects' ``repair`` (self-collision declared);
+          effects' ``repair`` (self-collision declared): down to dt/16
+          (``TUNNELLING_HALVINGS``: a layer that crosses the band in one step tunnels);
         - with a larger max strain than ``simulation.redo_strain``, or a surface sample deeper
           inside a collider than ``simulation.redo_penetration`` (each when set), unless a
-          halving left it above ``REDO_GAIN`` of the try before (the garment's, not the step's).
+          halving left it above ``REDO_GAIN`` of the try before: down to dt/4 (``REDO_HALVINGS``).
         The step goes back to the run's afterwards: a frame that a smaller step cannot mend
         costs that frame, not the run."""
         dt, substeps = self.time_step.dt, self.time_step.substeps_per_frame
@@ -289,7 +291,7 @@ class Simulation:
         refines = self.guards_crossings or bool(self.redo_limits)
         before = dict.fromkeys(self.redo_limits, math.inf)
         halved = dict.fromkeys(["tunnelling", *self.redo_limits], 0)
-        for halvings in range(REDO_HALVINGS + 1 if refines else 1):
+        for halvings in range(max(TUNNELLING_HALVINGS, REDO_HALVINGS) + 1 if refines else 1):
             if halvings:
                 self._roll_back()
                 self.set_time_step(dt / 2 ** halvings, substeps * 2 ** halvings)
@@ -316,10 +318,12 @@ class Simulation:
             if "penetration" in self.redo_limits:
                 depth = self.surface_depth(x)
                 measured["penetration"] = float(depth.max(initial=0.0))
+            tunnelled = tunnelled and halvings < TUNNELLING_HALVINGS
             exceeded = [name for name, limit in self.redo_limits.items()
-                        if limit < measured[name] < REDO_GAIN * before[name]]
+                        if limit < measured[name] < REDO_GAIN * before[name]
+                        and halvings < REDO_HALVINGS]
             before = {name: measured[name] for name in self.redo_limits}
-            if not (tunnelled or exceeded) or halvings == REDO_HALVINGS:
+            if not (tunnelled or exceeded):
                 break
             halved["tunnelling"] += tunnelled
             for name in exceeded:
