@@ -755,27 +755,61 @@ def test_each_build_lists_every_pair_of_overlapping_patches_the_cones_keep_in_or
     triangles, triangle_patch = model.garment.triangles, patches.triangle_patch
     axes = []
     for x in [folded @ turn.T + np.array([0.3, -0.2, 0.1]) for turn in turns] + [waved]:
-        state.x.from_numpy(x)
-        state.v.fill(0.0)
-        effect.pairs.ask_rebuild()
-        forces.evaluate(state.x, state.v, 0.0, out)
-        axes.append(int(patches.sweep_axis[None]))
-        corners = x[triangles]
-        grow = 0.5 * effect.reach
-        lower = np.array([corners[triangle_patch == p].reshape(-1, 3).min(axis=0) - grow
-                          for p in range(patches.count)])
-        upper = np.array([corners[triangle_patch == p].reshape(-1, 3).max(axis=0) + grow
-                          for p in range(patches.count)])
-        overlap = ((lower[:, None] <= upper[None]) & (lower[None] <= upper[:, None])).all(axis=2)
-        culled = np.zeros((patches.count, patches.count), np.int32)
-        culled_pairs_of_patches(patches, culled)
-        listed = patches.partner.to_numpy()
-        counts = patches.partner_count.to_numpy()
-        kept = overlap & (culled == 0)
+        kept = check_partners(model, forces, state, out, effect, x)
         assert kept.sum() > patches.count  # the fold's layers: partners beyond themselves
-        for p in range(patches.count):
-            assert list(listed[p, :counts[p]]) == list(np.flatnonzero(kept[p])), p
+        axes.append(int(patches.sweep_axis[None]))
     assert axes == [2, 0, 1, 2]  # the sheet's widest spread along z, then x, then y, then z
+
+
+def check_partners(model, forces, state, out, effect, x: np.ndarray) -> np.ndarray:
+    """Build the list at x; assert each patch's partners are, in ascending order, the patches
+    whose boxes (its triangles' corners grown by half the reach, in NumPy) overlap its own and
+    that ``culled`` keeps; return that (count, count) matrix of kept pairs."""
+    state.x.from_numpy(x)
+    state.v.fill(0.0)
+    effect.pairs.ask_rebuild()
+    forces.evaluate(state.x, state.v, 0.0, out)
+    patches = effect.pairs.patches
+    triangle_patch = patches.triangle_patch
+    corners = x[model.garment.triangles]
+    grow = 0.5 * effect.reach
+    lower = np.array([corners[triangle_patch == p].reshape(-1, 3).min(axis=0) - grow
+                      for p in range(patches.count)])
+    upper = np.array([corners[triangle_patch == p].reshape(-1, 3).max(axis=0) + grow
+                      for p in range(patches.count)])
+    overlap = ((lower[:, None] <= upper[None]) & (lower[None] <= upper[:, None])).all(axis=2)
+    culled = np.zeros((patches.count, patches.count), np.int32)
+    culled_pairs_of_patches(patches, culled)
+    listed = patches.partner.to_numpy()
+    counts = patches.partner_count.to_numpy()
+    kept = overlap & (culled == 0)
+    for p in range(patches.count):
+        assert list(listed[p, :counts[p]]) == list(np.flatnonzero(kept[p])), p
+    return kept
+
+
+def test_a_sheet_rolled_round_more_than_once_lists_its_flat_wraps_as_partners():
+    """The dense sheet rolled into a spiral of 1.2 cm radius, its second wrap 4 mm outside the
+    first: patches a wrap apart lie over each other with their normals alike and their cones
+    flat, but they are far apart along the cloth, so they are partners (``culled`` keeps every
+    pair that is not near along the cloth, however flat), each patch's as listed against NumPy
+    (``check_partners``)."""
+    model, forces, state, out, effect = folded_sheet_physics(12, 0.0915)
+    rest = model.garment.positions
+    along = rest[:, 0] - rest[:, 0].min()  # arc length round the spiral [m]
+    radius = 0.012 + 0.004 * along / (2 * np.pi * 0.012)
+    angle = along / 0.012
+    x = np.stack([radius * np.cos(angle), radius * np.sin(angle), rest[:, 2]], axis=1)
+    kept = check_partners(model, forces, state, out, effect, x)
+    patches = effect.pairs.patches
+    triangles, triangle_patch = model.garment.triangles, patches.triangle_patch
+    particles = [set(triangles[triangle_patch == p].ravel()) for p in range(patches.count)]
+    touching = [{q for q in range(patches.count) if particles[p] & particles[q]}
+                for p in range(patches.count)]
+    wraps = [(p, q) for p, q in zip(*np.nonzero(kept)) if p != q and q not in touching[p]
+             and not touching[p] & touching[q]]
+    culled = flat_patch_pairs(x, triangles, triangle_patch)
+    assert len(wraps) > 10 and all(culled(p, p) for p, _ in wraps)  # flat, a wrap apart
 
 
 def test_a_fold_through_triangles_wound_the_other_way_is_listed_the_same():

@@ -175,6 +175,12 @@ class MeshPatches:
         # boxes' lower bound along the sweep's axis (x, y or z: 0, 1, 2)
         self.lower, self.upper = (ti.Vector.field(3, real, self.count) for _ in range(2))
         self.sweep_order = ti.field(ti.i32, self.count)
+        # the boxes in ``sweep_order`` (read in a row by the sweep), their lower bounds along its
+        # axis, and each near patch's relation to the patch being swept (``NOT_NEAR`` else)
+        self.sorted_lower, self.sorted_upper = (ti.Vector.field(3, real, self.count)
+                                                for _ in range(2))
+        self.sorted_key = ti.field(real, self.count)
+        self.relation_mark = ti.field(ti.i32, self.count)
         self.sweep_axis = ti.field(ti.i32, ())
         self.swept = ti.field(ti.i32, ())  # whether the last build's boxes were all finite
         # each patch's cone and its neighbourhood's: the unit axis and the room α − half-angle
@@ -277,7 +283,8 @@ class MeshPatches:
         ``SWEEP_AXIS_SWITCH`` times as wide (a skirt turning about its own axis would otherwise
         flip between x and z, and each flip re-sorts from an order along the other). ``swept``
         when every box is finite; a cloth with non-finite positions (a run gone unstable, which
-        its frame's guard stops) lists no partners. On one thread (call it under a serial
+        its frame's guard stops) lists no partners. Then the boxes copied in that order, with
+        their lower bounds along the axis, for the sweep. On one thread (call it under a serial
         loop)."""
         low = ti.Vector([self.model.real(ti.math.inf)] * 3)
         high, top = -low, -low  # the lower corners' extent, the upper corners' highest
@@ -301,6 +308,10 @@ class MeshPatches:
                 self.sweep_order[j] = self.sweep_order[j - 1]
                 j -= 1
             self.sweep_order[j] = p
+        for k in range(self.count):
+            p = self.sweep_order[k]
+            self.sorted_lower[k], self.sorted_upper[k] = self.lower[p], self.upper[p]
+            self.sorted_key[k] = along(self.lower[p], axis)
 
     @ti.func
     def _relation(self, p, q) -> ti.i32:
@@ -326,26 +337,33 @@ class MeshPatches:
         if p == q:
             result = int(self.room[p][0] >= -1.0)
         else:
-            relation = self._relation(p, q)
-            if relation != NOT_NEAR:
-                axis_p, room_p = self.axis[p], self.room[p]
-                axis_q, room_q = self.axis[q], self.room[q]
-                if relation == SHARES_NEIGHBOUR:
-                    axis_p, room_p = self.around_axis[p], self.around_room[p]
-                    axis_q, room_q = self.around_axis[q], self.around_room[q]
-                if room_p[0] >= -1.0 and room_q[0] >= -1.0:
-                    result = int(axis_p.dot(axis_q)
-                                 >= room_p[0] * room_q[0] - room_p[1] * room_q[1])
+            result = self._culled_as(p, q, self._relation(p, q))
+        return result
+
+    @ti.func
+    def _culled_as(self, p, q, relation) -> ti.i32:
+        """``culled`` for two patches p ≠ q related as ``relation``."""
+        result = 0
+        if relation != NOT_NEAR:
+            axis_p, room_p = self.axis[p], self.room[p]
+            axis_q, room_q = self.axis[q], self.room[q]
+            if relation == SHARES_NEIGHBOUR:
+                axis_p, room_p = self.around_axis[p], self.around_room[p]
+                axis_q, room_q = self.around_axis[q], self.around_room[q]
+            if room_p[0] >= -1.0 and room_q[0] >= -1.0:
+                result = int(axis_p.dot(axis_q) >= room_p[0] * room_q[0] - room_p[1] * room_q[1])
         return result
 
     @ti.func
     def list_partners(self, overflow: ti.template()):
         """Every patch's partners (itself included when not flat), ascending: the patches whose
         boxes overlap its own that ``culled`` keeps, found by a sweep along ``sweep_order`` (each
-        patch meets the patches after it until one's lower bound passes its upper; ``culled`` is
-        symmetric, so each pair is tested once and listed on both sides); past
-        ``partner_capacity`` (every patch, or ``MOST_PARTNERS``), counted in ``overflow``
-        (``_add_partner``). On one thread (call it under a serial loop)."""
+        patch meets the patches after it until one's lower bound passes its upper, their boxes
+        read in a row from ``sort_boxes``' copies; its near patches' relations marked in
+        ``relation_mark`` while it sweeps, not searched for each; ``culled`` is symmetric, so
+        each pair is tested once and listed on both sides); past ``partner_capacity`` (every
+        patch, or ``MOST_PARTNERS``), counted in ``overflow`` (``_add_partner``). On one thread
+        (call it under a serial loop)."""
         for p in range(self.count):
             self.partner_count[p] = 0
             if self.swept[None] and self.culled(p, p) == 0:
@@ -353,17 +371,20 @@ class MeshPatches:
         axis = self.sweep_axis[None]
         for k in range(self.count * self.swept[None]):
             p = self.sweep_order[k]
-            end = along(self.upper[p], axis)
+            for n in range(self.near_start[p], self.near_start[p + 1]):
+                self.relation_mark[self.near[n][0]] = self.near[n][1]
+            low, high = self.sorted_lower[k], self.sorted_upper[k]
+            end = along(high, axis)
             for j in range(k + 1, self.count):
-                q = self.sweep_order[j]
-                if along(self.lower[q], axis) > end:
+                if self.sorted_key[j] > end:
                     break
-                overlap = (self.lower[p] <= self.upper[q]).all() \
-                    and (self.lower[q] <= self.upper[p]).all()
-                if overlap:
-                    if self.culled(p, q) == 0:
+                if (low <= self.sorted_upper[j]).all() and (self.sorted_lower[j] <= high).all():
+                    q = self.sweep_order[j]
+                    if self._culled_as(p, q, self.relation_mark[q]) == 0:
                         self._add_partner(p, q, overflow)
                         self._add_partner(q, p, overflow)
+            for n in range(self.near_start[p], self.near_start[p + 1]):
+                self.relation_mark[self.near[n][0]] = NOT_NEAR
 
     @ti.func
     def _add_partner(self, p, q, overflow: ti.template()):
