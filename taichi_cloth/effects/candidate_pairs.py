@@ -14,12 +14,13 @@ The build: each triangle's box grown by the reach and each edge's by half of it,
 cloth's patches with their partners (``effects/mesh_patches.py``: the pairs of patches that may
 hold layers of cloth, flat neighbourhoods left out); each particle walks the triangles of its
 home patch's partners (the vertex–triangle pairs: a vertex and a triangle it is not a corner of,
-whose box holds it; a partner whose box is too far from the particle is skipped whole), each
-edge the edges of higher index of its home patch's partners (the edge–edge pairs of edges
-sharing no particle, whose boxes overlap; a patch's edges and its partner's are first tested
-against the region both patches' boxes share, and only those that meet it against each other);
-then the exact distance. All on one thread: each walk into its own row (up to
-``FOUND_PER_ITEM`` finds), then the finds listed in particle order, then edge order (up to
+whose box holds it; a partner whose box is too far from the particle is skipped whole), and
+each pair of partners once, their home edges against each other (the edge–edge pairs of edges
+sharing no particle, whose boxes overlap, into the row of the lower edge; each patch's edges
+are first tested against the region both patches' boxes share, and only those that meet it
+against each other); then the exact distance. All on one thread: each particle's and edge's
+finds in a row of its own (up to ``FOUND_PER_ITEM``), then listed in particle order, then edge
+order (up to
 ``PAIRS_PER_ITEM`` per particle and edge; ``overflow`` counts any dropped). Every particle gets
 the CSR list of its (pair, corner) entries as 4·pair + corner, in pair order.
 
@@ -120,8 +121,9 @@ class CandidatePairs(PairRecords):
     def update(self, x):
         """The list at positions x [m]: measured against the last build and, when stale, built
         again, all on one thread: the boxes and the patches' cones and sweep order, each patch's
-        partners, each particle's walk and each patch's edges' walks into their own rows, then
-        the list and the entries in particle and edge order. (A hand-off to a second thread
+        partners, each particle's walk into its row, each pair of partners' edges into the edges'
+        rows (all started first, their crossed pairs kept after), then the list and the entries
+        in particle and edge order. (A hand-off to a second thread
         costs ~50 µs and the second thread wakes ~0.3 ms late on the 2-core machines measured,
         longer than these loops take: docs/performance.md, "The rebuild on one thread".)"""
         ti.loop_config(serialize=True)
@@ -134,8 +136,12 @@ class CandidatePairs(PairRecords):
                 self.patches.list_partners(self.overflow)
                 for i_p in range(self.model.particle_count):
                     self._list_vertex_triangle(x, i_p)
+                for e in range(self.edge_count):
+                    self._start_row(self.model.particle_count + e)
                 for patch in range(self.patches.count):
                     self._list_edge_edge(x, patch)
+                for e in range(self.edge_count):
+                    self._keep_crossed(self.model.particle_count + e)
         self._list(self.stale[None])
 
     @ti.func
@@ -281,56 +287,54 @@ class CandidatePairs(PairRecords):
 
     @ti.func
     def _list_edge_edge(self, x, p):
-        """The pairs of patch p's home edges: each edge's pairs with the edges of higher index of
-        p's partners whose boxes overlap its own, that share no particle with it, within the
-        reach, and its crossed ones: its row of ``found``. Partner by partner, only the edges
-        of either patch whose boxes meet the region that both patches' boxes share are tested
-        against each other (each patch's box holds its edges'); a row still gets its finds by
-        partner, then by the other edge's index, descending."""
+        """The edge–edge pairs between patch p's home edges and those of each of its partners q ≥ p
+        (each pair of patches walked once): each two edges whose boxes overlap, that share no
+        particle, within the reach, into the row of the lower (its rows started and their crossed
+        pairs kept before and after all patches' walks). Only the edges of either patch whose boxes
+        meet the region that both patches' boxes share are tested against each other (each patch's
+        box holds its edges')."""
         patches = self.patches
         particles = self.model.particle_count
         first, end = patches.edge_start[p], patches.edge_start[p + 1]
-        for k in range(first, end):
-            self._start_row(particles + patches.edge[k])
         for n in range(patches.partner_count[p] * int(first < end)):  # (a patch may own none)
             q = patches.partner[p, n]
-            low = ti.max(patches.lower[p], patches.lower[q])
-            high = ti.min(patches.upper[p], patches.upper[q])
-            meeting = 0  # bit k: p's edge first + k meets the region (a patch has ≤ 24 edges)
-            for k in range(first, end):
-                e = patches.edge[k]
-                meeting |= int((self.edge_lower[e] <= high).all()
-                               and (low <= self.edge_upper[e]).all()) << (k - first)
             q_first, q_end = patches.edge_start[q], patches.edge_start[q + 1]
-            theirs = 0  # bit k: q's edge q_first + k meets the region, above p's lowest edge
-            for k in range(q_first, q_end):
-                other = patches.edge[k]
-                theirs |= int(other > patches.edge[first] and (self.edge_lower[other] <= high).all()
-                              and (low <= self.edge_upper[other]).all()) << (k - q_first)
-            while theirs != 0:  # q's edges ascend: the highest bit, the highest edge, first
-                highest = 31 - ti.math.clz(theirs)
-                theirs ^= 1 << highest
-                other = patches.edge[q_first + highest]
-                other_ends = self.ends[other]
-                near = 0  # bit k: p's edge first + k is a candidate with ``other``
+            if q >= p and q_first < q_end:
+                low = ti.max(patches.lower[p], patches.lower[q])
+                high = ti.min(patches.upper[p], patches.upper[q])
+                meeting = 0  # bit k: p's edge first + k meets the region
                 for k in range(first, end):
                     e = patches.edge[k]
-                    ends = self.ends[e]
-                    near |= int((meeting >> (k - first)) & 1 == 1 and e < other
-                                and (self.edge_lower[e] <= self.edge_upper[other]).all()
-                                and (self.edge_lower[other] <= self.edge_upper[e]).all()
-                                and other_ends[0] != ends[0] and other_ends[0] != ends[1]
-                                and other_ends[1] != ends[0] and other_ends[1] != ends[1]) \
-                        << (k - first)
-                while near != 0:
-                    lowest = near & -near
-                    near ^= lowest
-                    e = patches.edge[first + 31 - ti.math.clz(lowest)]
-                    ends = self.ends[e]
-                    self._consider(x, particles + e, other, ti.Vector(
-                        [ends[0], ends[1], other_ends[0], other_ends[1]]), EDGE_EDGE)
-        for k in range(first, end):
-            self._keep_crossed(particles + patches.edge[k])
+                    meeting |= int((self.edge_lower[e] <= high).all()
+                                   and (low <= self.edge_upper[e]).all()) << (k - first)
+                theirs = 0  # bit k: q's edge q_first + k meets the region
+                for k in range(q_first, q_end):
+                    other = patches.edge[k]
+                    theirs |= int((self.edge_lower[other] <= high).all()
+                                  and (low <= self.edge_upper[other]).all()) << (k - q_first)
+                while theirs != 0:
+                    highest = 31 - ti.math.clz(theirs)
+                    theirs ^= 1 << highest
+                    other = patches.edge[q_first + highest]
+                    other_ends = self.ends[other]
+                    near = 0  # bit k: p's edge first + k is a candidate with ``other``
+                    for k in range(first, end):
+                        e = patches.edge[k]
+                        ends = self.ends[e]
+                        near |= int((meeting >> (k - first)) & 1 == 1 and (q != p or e < other)
+                                    and (self.edge_lower[e] <= self.edge_upper[other]).all()
+                                    and (self.edge_lower[other] <= self.edge_upper[e]).all()
+                                    and other_ends[0] != ends[0] and other_ends[0] != ends[1]
+                                    and other_ends[1] != ends[0] and other_ends[1] != ends[1]) \
+                            << (k - first)
+                    while near != 0:
+                        lowest = near & -near
+                        near ^= lowest
+                        e = patches.edge[first + 31 - ti.math.clz(lowest)]
+                        low_edge, high_edge = ti.min(e, other), ti.max(e, other)
+                        ends, high_ends = self.ends[low_edge], self.ends[high_edge]
+                        self._consider(x, particles + low_edge, high_edge, ti.Vector(
+                            [ends[0], ends[1], high_ends[0], high_ends[1]]), EDGE_EDGE)
 
     @ti.func
     def _list_entries(self):
