@@ -15,7 +15,7 @@ cloth's patches with their partners (``effects/mesh_patches.py``: the pairs of p
 hold layers of cloth, flat neighbourhoods left out); each particle walks the triangles of its
 home patch's partners (the vertex–triangle pairs: a vertex and a triangle it is not a corner of,
 whose box holds it; a partner whose box is too far from the particle is skipped whole), and
-each pair of partners once, their home edges against each other (the edge–edge pairs of edges
+each pair of partners once (from the higher), their home edges against each other (the edge–edge pairs of edges
 sharing no particle, whose boxes overlap, into the row of the lower edge; each patch's edges
 are first tested against the region both patches' boxes share, and only those that meet it
 against each other); then the exact distance. All on one thread: each particle's and edge's
@@ -287,10 +287,11 @@ class CandidatePairs(PairRecords):
 
     @ti.func
     def _list_edge_edge(self, x, p):
-        """The edge–edge pairs between patch p's home edges and those of each of its partners q ≥ p
-        (each pair of patches walked once): each two edges whose boxes overlap, that share no
-        particle, within the reach, into the row of the lower (its rows started and their crossed
-        pairs kept before and after all patches' walks). Only the edges of either patch whose boxes
+        """The edge–edge pairs between patch p's home edges and those of each of its partners q ≤ p
+        (each pair of patches walked once, from the higher: a full partner list keeps the lowest
+        partners): each two edges whose boxes overlap, that share no particle, within the reach,
+        into the row of the lower (its rows started and their crossed pairs kept before and after
+        all patches' walks). Only the edges of either patch whose boxes
         meet the region that both patches' boxes share are tested against each other (each patch's
         box holds its edges')."""
         patches = self.patches
@@ -299,7 +300,7 @@ class CandidatePairs(PairRecords):
         for n in range(patches.partner_count[p] * int(first < end)):  # (a patch may own none)
             q = patches.partner[p, n]
             q_first, q_end = patches.edge_start[q], patches.edge_start[q + 1]
-            if q >= p and q_first < q_end:
+            if q <= p and q_first < q_end:
                 low = ti.max(patches.lower[p], patches.lower[q])
                 high = ti.min(patches.upper[p], patches.upper[q])
                 meeting = 0  # bit k: p's edge first + k meets the region

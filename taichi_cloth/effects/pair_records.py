@@ -1,6 +1,6 @@
 """The side records of self-collision's candidate pairs (``effects/crossing_history.py``), kept
-beside the finds of ``candidate_pairs.CandidatePairs``, which mixes this class in: each walk's
-row of finds has a row of records; a rebuild carries a record over to the same pair found
+beside the finds of ``candidate_pairs.CandidatePairs``, which mixes this class in: each
+particle's and edge's row of finds has a row of records; a rebuild carries a record over to the same pair found
 again, gives a new pair the record it had at the last finished step at which the list was whole,
 or else at the step before (``reference_x``), and keeps a pair that has crossed in the list,
 however far apart it has gone, until it is back on its side; ``commit_record`` brings a record
@@ -60,7 +60,7 @@ class PairRecords:
 
     @ti.func
     def _held_record(self, owner, other):
-        """(the side record that walk ``owner``'s item ``other`` held before this rebuild, or
+        """(the side record that row ``owner``'s item ``other`` held before this rebuild, or
         ``crossing_history.UNKNOWN``; whether it was held)."""
         record = crossing_history.UNKNOWN
         held = 0
@@ -93,8 +93,8 @@ class PairRecords:
 
     @ti.func
     def _keep_crossed(self, owner):
-        """The pairs of walk ``owner``'s previous row that have crossed and that the walk did not
-        find again (gone beyond the reach), appended with their records."""
+        """The pairs of row ``owner``'s previous finds that have crossed and that this build did
+        not find again (gone beyond the reach), appended with their records."""
         for n in range(self.previous_count[owner]):
             if crossing_history.is_crossed(self.previous_record[owner, n]):
                 other = self.previous_found[owner, n]

@@ -45,7 +45,7 @@ from taichi_cloth.runtime import start_taichi
 
 REDO_HALVINGS = 2  # a frame that overstretched or sank in is redone at dt/2, then dt/4
 TUNNELLING_HALVINGS = 4  # a frame that tunnelled: down to dt/16 while it still does (a layer
-# must not cross the band in a step: 1 mm at 4 m/s is 1/4,000 s, `twirl`'s 1/240 s over 16)
+# must not cross the band in a step: 1 mm at 4 m/s is 1/4,000 s, about `twirl`'s 1/240 s / 16)
 REDO_GAIN = 0.9  # a halving that leaves the strain (or depth) above this fraction of the try
 # before it shows one the step does not make (a tight garment): the frame is not halved again
 
