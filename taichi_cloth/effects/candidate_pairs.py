@@ -15,13 +15,13 @@ cloth's patches with their partners (``effects/mesh_patches.py``: the pairs of p
 hold layers of cloth, flat neighbourhoods left out); each particle walks the triangles of its
 home patch's partners (the vertex–triangle pairs: a vertex and a triangle it is not a corner of,
 whose box holds it; a partner whose box is too far from the particle is skipped whole), and
-each pair of partners once (from the higher), their home edges against each other (the edge–edge pairs of edges
-sharing no particle, whose boxes overlap, into the row of the lower edge; each patch's edges
-are first tested against the region both patches' boxes share, and only those that meet it
-against each other); then the exact distance. All on one thread: each particle's and edge's
-finds in a row of its own (up to ``FOUND_PER_ITEM``), then listed in particle order, then edge
-order (up to
-``PAIRS_PER_ITEM`` per particle and edge; ``overflow`` counts any dropped). Every particle gets
+each pair of partners once (from the higher) their home edges against each other (the edge–edge
+pairs of edges sharing no particle, whose boxes overlap, into the row of the lower edge; each
+patch's edges are first tested against the region both patches' boxes share, and only those
+that meet it against each other); then the exact distance. All on one thread: each particle's
+and edge's finds in a row of its own (up to ``FOUND_PER_ITEM``), then listed in particle order,
+then edge order (up to ``PAIRS_PER_ITEM`` per particle and edge; ``overflow`` counts any
+dropped). Every particle gets
 the CSR list of its (pair, corner) entries as 4·pair + corner, in pair order.
 
 Each find keeps its pair's side record beside it (``pair_records.PairRecords``, mixed in).
@@ -123,9 +123,9 @@ class CandidatePairs(PairRecords):
         again, all on one thread: the boxes and the patches' cones and sweep order, each patch's
         partners, each particle's walk into its row, each pair of partners' edges into the edges'
         rows (all started first, their crossed pairs kept after), then the list and the entries
-        in particle and edge order. (A hand-off to a second thread
-        costs ~50 µs and the second thread wakes ~0.3 ms late on the 2-core machines measured,
-        longer than these loops take: docs/performance.md, "The rebuild on one thread".)"""
+        in particle and edge order. (A hand-off to a second thread costs ~50 µs and the second
+        thread wakes ~0.3 ms late on the 2-core machines measured, longer than these loops take:
+        docs/performance.md, "The rebuild on one thread".)"""
         ti.loop_config(serialize=True)
         for _ in range(1):
             self._measure_deformation(x, True)
@@ -291,9 +291,8 @@ class CandidatePairs(PairRecords):
         (each pair of patches walked once, from the higher: a full partner list keeps the lowest
         partners): each two edges whose boxes overlap, that share no particle, within the reach,
         into the row of the lower (its rows started and their crossed pairs kept before and after
-        all patches' walks). Only the edges of either patch whose boxes
-        meet the region that both patches' boxes share are tested against each other (each patch's
-        box holds its edges')."""
+        all patches' walks). Only the edges of either patch whose boxes meet the region that both
+        patches' boxes share are tested against each other (each patch's box holds its edges')."""
         patches = self.patches
         particles = self.model.particle_count
         first, end = patches.edge_start[p], patches.edge_start[p + 1]

@@ -1,14 +1,14 @@
 """The side records of self-collision's candidate pairs (``effects/crossing_history.py``), kept
 beside the finds of ``candidate_pairs.CandidatePairs``, which mixes this class in: each
-particle's and edge's row of finds has a row of records; a rebuild carries a record over to the same pair found
-again, gives a new pair the record it had at the last finished step at which the list was whole,
-or else at the step before (``reference_x``), and keeps a pair that has crossed in the list,
-however far apart it has gone, until it is back on its side; ``commit_record`` brings a record
-to the end of every step and ``keep_positions`` the positions they refer to; ``back_up`` and
-``roll_back`` keep them with the state that a redone frame goes back to (docs/physics.md,
-"Self-collision").
+particle's and edge's row of finds has a row of records; a rebuild carries a record over to the
+same pair found again, gives a new pair the record it had at the last finished step at which
+the list was whole, or else at the step before (``reference_x``), and keeps a pair that has
+crossed in the list, however far apart it has gone, until it is back on its side;
+``commit_record`` brings a record to the end of every step and ``keep_positions`` the positions
+they refer to; ``back_up`` and ``roll_back`` keep them with the state that a redone frame goes
+back to (docs/physics.md, "Self-collision").
 
-The host class provides ``model``, ``found``/``found_count`` (the walks' rows), ``pair_count``,
+The host class provides ``model``, ``found``/``found_count`` (the rows), ``pair_count``,
 ``pair_kind``, ``pair_particles``, ``pair_slot`` (each pair's find), ``_find``,
 ``_measure_deformation`` (which sets ``stale``) and ``rebuild_asked``.
 """
