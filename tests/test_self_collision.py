@@ -687,9 +687,23 @@ def test_the_candidate_list_holds_exactly_the_layered_pairs_within_the_reach(col
 
 
 @ti.kernel
-def culled_pairs_of_patches(patches: ti.template(), out: ti.types.ndarray()):
+def culled_pairs_of_patches(patches: ti.template(), relation: ti.types.ndarray(),
+                            out: ti.types.ndarray()):
     for p, q in ti.ndrange(patches.count, patches.count):
-        out[p, q] = patches.culled(p, q)
+        out[p, q] = patches.culled(p, q, relation[p, q])
+
+
+def patches_culled(patches) -> np.ndarray:
+    """(count, count): ``MeshPatches.culled`` of every pair of patches, each pair's relation
+    taken from ``cut_patches``' near lists."""
+    relation = np.zeros((patches.count, patches.count), np.int32)  # NOT_NEAR
+    start, near = patches.near_start.to_numpy(), patches.near.to_numpy()
+    for p in range(patches.count):
+        for q, how in near[start[p]:start[p + 1]]:
+            relation[p, q] = how
+    culled = np.zeros_like(relation)
+    culled_pairs_of_patches(patches, relation, culled)
+    return culled
 
 
 def bent_positions(model, radius: float) -> np.ndarray:
@@ -716,8 +730,7 @@ def test_which_pairs_of_patches_are_left_out_agrees_with_the_cones_computed_apar
     effect.pairs.ask_rebuild()
     forces.evaluate(state.x, state.v, 0.0, out)
     patches = effect.pairs.patches
-    culled = np.zeros((patches.count, patches.count), np.int32)
-    culled_pairs_of_patches(patches, culled)
+    culled = patches_culled(patches)
     triangles, triangle_patch = model.garment.triangles, patches.triangle_patch
     narrower, wider = (flat_patch_pairs(x, triangles, triangle_patch, 60.0 + step)
                        for step in (-1e-6, 1e-6))
@@ -778,8 +791,7 @@ def check_partners(model, forces, state, out, effect, x: np.ndarray) -> np.ndarr
     upper = np.array([corners[triangle_patch == p].reshape(-1, 3).max(axis=0) + grow
                       for p in range(patches.count)])
     overlap = ((lower[:, None] <= upper[None]) & (lower[None] <= upper[:, None])).all(axis=2)
-    culled = np.zeros((patches.count, patches.count), np.int32)
-    culled_pairs_of_patches(patches, culled)
+    culled = patches_culled(patches)
     listed = patches.partner.to_numpy()
     counts = patches.partner_count.to_numpy()
     kept = overlap & (culled == 0)

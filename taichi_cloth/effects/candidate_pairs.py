@@ -21,8 +21,8 @@ patch's edges are first tested against the region both patches' boxes share, and
 that meet it against each other); then the exact distance. All on one thread: each particle's
 and edge's finds in a row of its own (up to ``FOUND_PER_ITEM``), then listed in particle order,
 then edge order (up to ``PAIRS_PER_ITEM`` per particle and edge; ``overflow`` counts any
-dropped). Every particle gets
-the CSR list of its (pair, corner) entries as 4·pair + corner, in pair order.
+dropped). Every particle gets the CSR list of its (pair, corner) entries as 4·pair + corner, in
+pair order.
 
 Each find keeps its pair's side record beside it (``pair_records.PairRecords``, mixed in).
 """

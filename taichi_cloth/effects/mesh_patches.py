@@ -314,36 +314,14 @@ class MeshPatches:
             self.sorted_key[k] = along(self.lower[p], axis)
 
     @ti.func
-    def _relation(self, p, q) -> ti.i32:
-        """How patch q is related to patch p: ``SHARES_PARTICLE``, ``SHARES_NEIGHBOUR`` or
-        ``NOT_NEAR`` (a binary search of p's near patches, ascending; each halving a select, not
-        a branch, which would go either way at random)."""
-        low, high = self.near_start[p], self.near_start[p + 1]
-        while low < high:
-            middle = (low + high) // 2
-            below = self.near[middle][0] < q
-            low, high = ti.select(below, middle + 1, low), ti.select(below, high, middle)
-        relation = NOT_NEAR
-        if low < self.near_start[p + 1] and self.near[low][0] == q:
-            relation = self.near[low][1]
-        return relation
-
-    @ti.func
-    def culled(self, p, q) -> ti.i32:
-        """Whether the pair of patches p and q holds no layers (module docstring). Cones of
-        half-angles a, b ≤ α whose axes are θ apart fit in one of max(a, b, (θ + a + b)/2), flat
-        when θ ≤ (α − a) + (α − b): cos θ ≥ cos of the rooms' sum (at most 2α < π)."""
-        result = 0
-        if p == q:
-            result = int(self.room[p][0] >= -1.0)
-        else:
-            result = self._culled_as(p, q, self._relation(p, q))
-        return result
-
-    @ti.func
-    def _culled_as(self, p, q, relation) -> ti.i32:
-        """``culled`` for two patches p ≠ q related as ``relation``."""
-        result = 0
+    def culled(self, p, q, relation) -> ti.i32:
+        """Whether the pair of patches p and q, related as ``relation`` (``near``: ``NOT_NEAR`` for
+        p = q), holds no layers (module docstring): a patch with itself when its cone is flat;
+        near patches when their cones (sharing a particle) or their neighbourhoods' cones
+        (sharing a neighbour) fit in a flat one. Cones of half-angles a, b ≤ α whose axes are θ
+        apart fit in one of max(a, b, (θ + a + b)/2), flat when θ ≤ (α − a) + (α − b): cos θ ≥
+        cos of the rooms' sum (at most 2α < π)."""
+        result = int(p == q and self.room[p][0] >= -1.0)
         if relation != NOT_NEAR:
             axis_p, room_p = self.axis[p], self.room[p]
             axis_q, room_q = self.axis[q], self.room[q]
@@ -360,13 +338,13 @@ class MeshPatches:
         boxes overlap its own that ``culled`` keeps, found by a sweep along ``sweep_order`` (each
         patch meets the patches after it until one's lower bound passes its upper, their boxes
         read in a row from ``sort_boxes``' copies; its near patches' relations marked in
-        ``relation_mark`` while it sweeps, not searched for each; ``culled`` is symmetric, so
+        ``relation_mark`` while it sweeps, for ``culled``, which is symmetric, so
         each pair is tested once and listed on both sides); past ``partner_capacity`` (every
         patch, or ``MOST_PARTNERS``), counted in ``overflow`` (``_add_partner``). On one thread
         (call it under a serial loop)."""
         for p in range(self.count):
             self.partner_count[p] = 0
-            if self.swept[None] and self.culled(p, p) == 0:
+            if self.swept[None] and self.culled(p, p, NOT_NEAR) == 0:
                 self._add_partner(p, p, overflow)
         axis = self.sweep_axis[None]
         for k in range(self.count * self.swept[None]):
@@ -380,7 +358,7 @@ class MeshPatches:
                     break
                 if (low <= self.sorted_upper[j]).all() and (self.sorted_lower[j] <= high).all():
                     q = self.sweep_order[j]
-                    if self._culled_as(p, q, self.relation_mark[q]) == 0:
+                    if self.culled(p, q, self.relation_mark[q]) == 0:
                         self._add_partner(p, q, overflow)
                         self._add_partner(q, p, overflow)
             for n in range(self.near_start[p], self.near_start[p + 1]):
