@@ -213,16 +213,18 @@ def test_a_step_that_crosses_ends_with_the_pair_a_thickness_apart_on_its_side(be
 
 
 def test_putting_a_pair_back_stretches_no_spring_past_its_length_before():
-    """Vertex 3 through the face, 2 mm deep, its spring to particle 4 already 50 % over its
-    rest length and sloping 10° down from it, so that lifting the vertex lengthens the spring
-    by ~0.8 mm: the post step puts the vertex back above the face and shortens the spring to its
-    length before the step's sweeps, moving both ends along it (vertex 3 stays above)."""
+    """Vertex 3 through the face 1 cm inside its edge z = −1, 2 mm deep, its spring to particle
+    4 already 50 % over its rest length and sloping 10° down from it across that edge (so that,
+    put back, it passes the face's plane beyond the face: no edge left through it), so that
+    lifting the vertex lengthens the spring by ~0.8 mm: the post step puts the vertex back above
+    the face and shortens the spring to its length before the step's sweeps, moving both ends
+    along it (vertex 3 stays above)."""
     forces, state, out, effect = two_triangle_physics()
     slope = np.radians(10.0)
-    before = vertex_over_the_triangle(0.004)
-    after = vertex_over_the_triangle(-0.002)
+    before = vertex_over_the_triangle(0.004, -0.99)
+    after = vertex_over_the_triangle(-0.002, -0.99)
     for positions in (before, after):
-        positions[4] = positions[3] + 1.5 * np.array([np.cos(slope), -np.sin(slope), 0.0])
+        positions[4] = positions[3] + 1.5 * np.array([0.0, -np.sin(slope), -np.cos(slope)])
     self_collision_force(before)
     finish_step(effect, state)
     state.x.from_numpy(after)
@@ -274,6 +276,27 @@ def test_a_crossing_that_no_triangles_witness_is_not_undone_into_meeting_ones():
     assert force[3, 1] == pytest.approx(-MASS[3] * K_HAT * (THICKNESS - 0.002), rel=1e-9)
 
 
+def fan_over_the_triangle(heights) -> np.ndarray:
+    """Triangle (0, 1, 2) in the plane y = 0 and a fan of two, (3, 4, 5) and (3, 5, 6), lying
+    over its face, particles 3–6 at ``heights`` [m] above it."""
+    x = np.array([[-1.0, 0, -1], [1, 0, -1], [0, 0, 1], [0, 0, -0.3], [0.2, 0, -0.3],
+                  [0.1, 0, -0.1], [-0.1, 0, -0.1]])
+    x[3:, 1] = heights
+    return x
+
+
+@functools.cache
+def fan_physics():
+    """The triangle and the fan of ``fan_over_the_triangle`` (at rest flat on it), the masses
+    of ``MASS`` and 0.7 kg, with only the effect, built once: (forces, state, output field,
+    the effect)."""
+    triangles = [[0, 1, 2], [3, 4, 5], [3, 5, 6]]
+    model = Model(triangle_mesh(fan_over_the_triangle(np.zeros(4)), triangles,
+                                np.append(MASS, 0.7)), "f64")
+    physics = assemble(model, [(SelfCollision, SETTINGS)])
+    return physics.forces, model.state(), ti.Vector.field(3, ti.f64, 7), physics.effects[0]
+
+
 def test_a_crossing_inside_a_tangle_keeps_its_record_when_putting_it_back_would_tangle_more():
     """Vertex 3 goes 6 mm down through triangle 0–1–2 in one step, its two triangles (3, 4, 5)
     and (3, 5, 6) standing upright across that face: the first passes through it already
@@ -283,19 +306,59 @@ def test_a_crossing_inside_a_tangle_keeps_its_record_when_putting_it_back_would_
     counts a refusal and keeps the record: the pair stays crossed, and the penalty pushes
     vertex 3 up, back to its side, by m·k̂·(thickness + 2 mm) (a record given way would push it
     down by m·k̂·(thickness − 2 mm))."""
-    mass = np.append(MASS, 0.7)
     start = np.array([[-1.0, 0, -1], [1, 0, -1], [0, 0, 1], [0, 0.004, -0.3],
                       [0.05, 0.04, -0.3], [0.05, -0.04, -0.3], [-0.05, -0.04, -0.3]])
     end = start.copy()
     end[3, 1] = -0.002
-    model = Model(triangle_mesh(start, [[0, 1, 2], [3, 4, 5], [3, 5, 6]], mass), "f64")
-    physics = assemble(model, [(SelfCollision, SETTINGS)])
-    metrics, force = refused_step((physics.forces, model.state(),
-                                   ti.Vector.field(3, ti.f64, len(mass)), physics.effects[0]),
-                                  start, end)
+    metrics, force = refused_step(fan_physics(), start, end)
     assert metrics["self_collision_pairs"] == 1  # vertex 3 and the face, nothing else
     assert metrics["self_collision_crossed"] == 1
-    assert force[3, 1] == pytest.approx(mass[3] * K_HAT * (THICKNESS + 0.002), rel=1e-9)
+    assert force[3, 1] == pytest.approx(MASS[3] * K_HAT * (THICKNESS + 0.002), rel=1e-9)
+
+
+def test_a_put_back_that_trades_one_piercing_for_another_is_refused():
+    """Vertex 3 goes 6 mm down through the face in one step while its neighbours 4 and 6 stay
+    2 mm above it and 5 2 mm below: both fan triangles pass through the face, two edges of each.
+    Putting vertex 3 back above would leave two edges of each through it still (others): no
+    fewer, so the positions stay, a refusal is counted, and the record, witnessed, stays
+    crossed."""
+    before = fan_over_the_triangle([0.004, 0.002, -0.002, 0.002])
+    after = fan_over_the_triangle([-0.002, 0.002, -0.002, 0.002])
+    metrics, _ = refused_step(fan_physics(), before, after)
+    assert metrics["self_collision_crossed"] == 1
+
+
+def test_a_crossing_whose_witness_a_later_put_back_removes_takes_the_side_it_is_on():
+    """In one step vertex 3 goes from 4 mm above the face to 2 mm below it and vertex 6 from
+    4 mm below to 2 mm above, the fan's other particles staying 2 mm below. Vertex 3's pair,
+    first in the list, has edges through the face around it (3–6, 5–6: a witness), and putting
+    it back would leave more (3–4, 3–5), so it is refused and stays crossed; vertex 6's pair,
+    put back below, takes those edges out. The last pass then finds vertex 3's record crossed
+    with nothing witnessing it: it takes the side vertex 3 is on, below, and the penalty pushes
+    it on down, clear of the face, not up through it."""
+    forces, state, out, effect = fan_physics()
+    effect.forget_history()
+    state.v.fill(0.0)
+    state.x.from_numpy(fan_over_the_triangle([0.004, -0.002, -0.002, -0.004]))
+    forces.evaluate(state.x, state.v, 0.0, out)
+    finish_step(effect, state)
+    counts = effect.frame_metrics(state.x.to_numpy(), 0.0)
+    after = fan_over_the_triangle([-0.002, -0.002, -0.002, 0.002])
+    state.x.from_numpy(after)
+    finish_step(effect, state)
+    x = state.x.to_numpy()
+    metrics = effect.frame_metrics(x, 0.0)
+    assert metrics["self_collision_refusals"] == counts["self_collision_refusals"] + 1
+    assert metrics["self_collision_separations"] == counts["self_collision_separations"] + 1
+    assert metrics["self_collision_crossed"] == 0
+    np.testing.assert_array_equal(x[3], after[3])
+    assert x[6, 1] < x[0, 1]  # vertex 6 back below the face
+    forces.evaluate(state.x, state.v, 0.0, out)
+    force = out.to_numpy()[3]  # along the face's normal, tilted a little by the put-back
+    distance = closest_distance_point_triangle(x[3], x[0], x[1], x[2])
+    assert np.linalg.norm(force) == pytest.approx(MASS[3] * K_HAT * (THICKNESS - distance),
+                                                  rel=1e-9)
+    assert force[1] < 0
 
 
 @pytest.mark.parametrize("mend", ["next step", "repair"])

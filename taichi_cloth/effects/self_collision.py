@@ -22,8 +22,9 @@ A pair remembers which side of each other its primitives belong on (``crossing_h
 its closest points stay inside (over the face; within both edges) d is signed, so a pair that
 has passed through itself is pushed back, not further through; and after every step
 (``apply``, the post step) a pair that crossed within it is put back on its side, without
-stretching the springs past their length before (``_unstretch``) and not where that would leave
-more edges through faces around it (a record that no crossing witnesses gives way).
+stretching the springs past their length before (``_unstretch``) and only where that leaves no
+edges through faces around it, or fewer than before (a record that no crossing witnesses gives
+way, also after the step's other put-backs).
 
 Candidate pairs (``effects/candidate_pairs.py``): every pair within the reach, thickness +
 padding, in one compact list, less the pairs within flat stretches of cloth, which hold no layers
@@ -187,22 +188,27 @@ class SelfCollision(Effect):
         to ``SEPARATION_SWEEPS`` − 1 more of the pairs inside and on the wrong side of their
         records while the sweep before moved any (putting one pair back can push a neighbour
         through: two diagonals of a tight fold take turns otherwise), each pair in turn
-        (``_sweep_pair``); then the positions kept as the records' (``keep_positions``). On
-        one thread in list order (Gauss–Seidel, bit-reproducible). Before each sweep after the
-        first, the stretch springs that the sweeps have stretched are shortened again
-        (``_unstretch``), so the last word is the sides'."""
+        (``_sweep_pair``); then a last pass that moves nothing: a pair still crossed whose
+        crossing nothing witnesses any more (the sweep found edges through faces around it and
+        left it, and other pairs' moves took them out) takes the side it is on, so that its
+        penalty does not push it through a face it is clear of; then the positions kept as the
+        records' (``keep_positions``). On one thread in list order (Gauss–Seidel,
+        bit-reproducible). Before each sweep after the first, the stretch springs that the
+        sweeps have stretched are shortened again (``_unstretch``), so the last word is the
+        sides'."""
         ti.loop_config(serialize=True)
         for i in range(self.model.particle_count):
             self.unswept_x[i] = state.x[i]
             self.lifted[i] = 0
         ti.loop_config(serialize=True)
-        for sweep in range(SEPARATION_SWEEPS):
-            if sweep == 0 or self.moved[None] > 0:
-                if sweep > 0:
+        for sweep in range(SEPARATION_SWEEPS + 1):
+            releasing = sweep == SEPARATION_SWEEPS
+            if sweep == 0 or releasing or self.moved[None] > 0:
+                if sweep > 0 and not releasing:
                     self._unstretch(state)
                 self.moved[None] = 0
                 for k in range(self.pairs.pair_count[None]):
-                    self._sweep_pair(state, k, sweep == 0)
+                    self._sweep_pair(state, k, sweep == 0, releasing)
         self.pairs.keep_positions(state.x)
 
     @ti.func
@@ -234,7 +240,7 @@ class SelfCollision(Effect):
                             state.x[j] -= inverse_mass[j] * shift
 
     @ti.func
-    def _sweep_pair(self, state, k, first):
+    def _sweep_pair(self, state, k, first, releasing):
         """Pair k in a sweep of ``apply``: in the ``first``, its record committed
         (``commit_record``) at ``PATH_POINTS`` points of the step's straight path from the last
         step's end (``last_x``; the particles of an Euler or backward Euler step move on straight
@@ -250,16 +256,20 @@ class SelfCollision(Effect):
         σ·n the normal of its side): x_i += λ·b_i·w_i·σn with λ = −C / Σ_i b_i²·w_i (w the
         inverse masses; pinned particles do not move), and the same for the velocities when
         Σ_i b_i·v_i·σn < 0. Momentum is kept (Σ b_i = 0); the pair's record is back on its side;
-        ``moved`` counts it. Unless the move leaves more edges through faces around the pair
-        than it found (``piercing.intersections_around``): then the particles stay where they
-        were (``refusals`` counts it), and if there were none before, no crossing witnesses the
-        record (a hem gone round another layer's border between two points of the path) and
-        it takes the side the pair is on; else the record stays and the penalty pushes the
-        pair its way."""
+        ``moved`` counts it. Unless the move leaves edges through faces around the pair
+        (``piercing.intersections_around``) and no fewer than it found (a move that mends
+        nothing there only trades one piercing for another): then the particles stay where
+        they were (``refusals`` counts it), and if there were none before, no crossing witnesses
+        the record (a hem gone round another layer's border between two points of the path)
+        and it takes the side the pair is on; else the record stays and the penalty pushes the
+        pair its way. In the last pass (``releasing``) only a crossed pair is looked at, and
+        nothing moves: with no edges through faces around it, its record takes the side it is
+        on."""
         real = self.model.real
         inverse_mass = ti.static(self.model.particle_inv_mass)
         record = self.pairs.record(k)
-        if first or ti.abs(record) == crossing_history.INSIDE:
+        if (first or ti.abs(record) == crossing_history.INSIDE) and not releasing or (
+                releasing and crossing_history.is_crossed(record)):
             ids = self.pairs.pair_particles[k]
             kind = self.pairs.pair_kind[k]
             share, inside, normal = ti.Vector.zero(real, 4), 0, ti.Vector.zero(real, 3)
@@ -301,24 +311,26 @@ class SelfCollision(Effect):
                              for slot in ti.static(range(4))]
                     first_slots = 1 if kind == VERTEX_TRIANGLE else 2
                     # the edges through faces around the pair before and after the move (one
-                    # inlined piercing test for both)
+                    # inlined piercing test for both; before only, in the last pass)
                     meeting = 0
                     refused = 0
-                    for round_ in range(2):
+                    for round_ in range(2 - int(releasing)):
                         count = intersections_around(self.model, state.x, ids, first_slots)
                         if round_ == 0:
                             meeting = count
-                            for slot in ti.static(range(4)):
-                                state.x[ids[slot]] += lift * moves[slot]
-                        elif count > meeting:
+                            if not releasing:
+                                for slot in ti.static(range(4)):
+                                    state.x[ids[slot]] += lift * moves[slot]
+                        elif count > 0 and count >= meeting:
                             refused = 1
                     if refused:
                         for slot in ti.static(range(4)):
                             state.x[ids[slot]] = unmoved[slot]
+                        self.refusals[None] += 1
+                    if releasing or refused:
                         if meeting == 0:  # nothing witnesses the record: it gives way
                             self.pairs.set_record(k, crossing_history.record_from_here(
                                 inside, height))
-                        self.refusals[None] += 1
                     else:
                         for slot in ti.static(range(4)):
                             state.v[ids[slot]] += stop * moves[slot]
