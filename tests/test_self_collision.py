@@ -118,6 +118,29 @@ def test_far_apart_nothing_acts():
     assert np.all(self_collision_force(positions) == 0.0)
 
 
+@pytest.mark.parametrize("thickness", [0.004, 0.001, 0.0005])
+def test_unset_stiffness_stops_layers_closing_at_4_m_s_at_any_thickness(thickness):
+    """Without a stiffness, k̂ = 10⁶·(4 mm / thickness)²: the penalty's energy over the whole
+    thickness, ½·m·k̂·δ², is the kinetic energy ½·m·v² of layers closing at v = 4 m/s (the speed
+    it stops: docs/physics.md, "Tunnelling"), and ``dt = "auto"`` sees that stiffness; with
+    backward Euler's step of 1/60 s, k̂·dt² is at most 300 (10⁶ at 4 mm, less than 1.6·10⁷ at
+    1 mm), an explicit integrator's step leaves it. A stiffness given is kept."""
+    rest = np.array([[-1.0, 0, -1], [1, 0, -1], [0, 0, 1], [0, 1, 0], [1, 1, 0], [0, 1, 1]])
+    model = Model(two_triangles(rest), "f64")
+    unset, given = assemble(model, [(SelfCollision, SelfCollisionSettings(thickness=thickness)),
+                                    (SelfCollision, SelfCollisionSettings(
+                                        thickness=thickness, stiffness=2e5))]).effects
+    assert 0.5 * unset.stiffness * thickness ** 2 == pytest.approx(0.5 * 4.0 ** 2, rel=1e-12)
+    assert unset.stability_modes()[0][0] == pytest.approx(4 * unset.stiffness, rel=1e-12)
+    stops_4_m_s = unset.stiffness
+    unset.fit_time_step(1 / 60, "symplectic")
+    assert unset.stiffness == stops_4_m_s
+    for effect in (unset, given):
+        effect.fit_time_step(1 / 60, "implicit")
+    assert unset.stiffness == min(stops_4_m_s, 300 * 60 ** 2)
+    assert given.stiffness == 2e5
+
+
 def vertex_over_the_triangle(height: float, z: float = 0.2) -> np.ndarray:
     """Vertex 3 ``height`` [m] above the plane y = 0 of triangle (0, 1, 2) at (0.1, ·, z):
     inside the triangle for z > −1, outside beyond its edge z = −1."""

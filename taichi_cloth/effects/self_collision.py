@@ -22,7 +22,7 @@ A pair remembers which side of each other its primitives belong on (``crossing_h
 its closest points stay inside (over the face; within both edges) d is signed, so a pair that
 has passed through itself is pushed back, not further through; and after every step
 (``apply``, the post step) a pair that crossed within it is put back on its side, without
-stretching the springs past their length before (``_unstretch``) and only where that leaves no
+stretching the springs past their length before (``unstretch``) and only where that leaves no
 edges through faces around it, or fewer than before (a record that no crossing witnesses gives
 way, also after the step's other put-backs).
 
@@ -52,6 +52,7 @@ from taichi_cloth.effects.candidate_pairs import CandidatePairs
 from taichi_cloth.effects.penalty import normal_force_magnitude, penalty_terms
 from taichi_cloth.effects.piercing import intersections_around
 from taichi_cloth.effects.proximity import VERTEX_TRIANGLE, pair_geometry
+from taichi_cloth.effects.unstretch import unstretch
 from taichi_cloth.errors import InputError
 from taichi_cloth.settings import setting
 
@@ -61,17 +62,22 @@ SEPARATION_SWEEPS = 4  # sweeps of the list that put crossed pairs back, at most
 PATH_POINTS = 4  # points of a step's straight path at which each pair's side record is brought
 # up to date (``_sweep_pair``): 1/4, 1/2, 3/4 and the end (the points before it only for a pair
 # inside at the end)
-STRAIN_ALLOWANCE = 0.01  # a spring the sweeps stretch is shortened to this strain (or its own)
 CONTACTS_PER_PARTICLE = 4  # the stiffness bound for dt = "auto": a vertex, corner and edge shares
+# the stiffness when the scene gives none: 10⁶ s⁻² at 4 mm, scaled by (4 mm / thickness)², so that
+# layers closing at up to thickness·√stiffness = 4 m/s (a twirling hem) are stopped at any thickness;
+# for backward Euler no more than STEP_STIFFNESS / dt² (``fit_time_step``)
+REFERENCE_STIFFNESS, REFERENCE_THICKNESS, STEP_STIFFNESS = 1e6, 0.004, 300.0  # 1/s², m, 1
 
 
 @dataclass(frozen=True)
 class SelfCollisionSettings:
     thickness: float = setting(0.004, "float", low=0.0, low_inclusive=False,
                                doc="distance the cloth keeps from itself, m")
-    stiffness: float = setting(1e6, "float", low=0.0, low_inclusive=False,
-                               doc="penalty stiffness per unit particle mass, 1/s²: layers "
-                                   "meeting faster than thickness·√stiffness pass through")
+    stiffness: float | None = setting(None, "float", low=0.0, low_inclusive=False,
+                                      doc="penalty stiffness per unit particle mass, 1/s²: "
+                                          "layers meeting faster than thickness·√stiffness pass "
+                                          "through; unset, 10⁶·(4 mm / thickness)²: 4 m/s "
+                                          "(``fit_time_step``)")
     damping: float = setting(0.5, "float", low=0.0, doc="normal damping ratio ζ")
     friction: float = setting(0.3, "float", low=0.0, doc="Coulomb coefficient μ")
 
@@ -99,7 +105,10 @@ class SelfCollision(Effect):
             raise InputError(f"effects.self_collision.thickness: {settings.thickness:g} m must be "
                              f"below {0.5 * shortest:g} m, half the cloth's shortest edge "
                              f"({shortest:g} m)")
-        self.thickness, self.stiffness = settings.thickness, settings.stiffness
+        self.thickness, self.stiffness = settings.thickness, settings.stiffness  # m, 1/s²
+        self.stiffness_given = self.stiffness is not None
+        if not self.stiffness_given:
+            self.stiffness = REFERENCE_STIFFNESS * (REFERENCE_THICKNESS / self.thickness) ** 2
         self.damping_ratio, self.friction = settings.damping, settings.friction
         self.padding = PADDING * settings.thickness  # m: the list holds pairs within reach
         self.reach = settings.thickness + self.padding  # m
@@ -194,7 +203,7 @@ class SelfCollision(Effect):
         penalty does not push it through a face it is clear of; then the positions kept as the
         records' (``keep_positions``). On one thread in list order (Gauss–Seidel,
         bit-reproducible). Before each sweep after the first, the stretch springs that the
-        sweeps have stretched are shortened again (``_unstretch``), so the last word is the
+        sweeps have stretched are shortened again (``unstretch``), so the last word is the
         sides'."""
         ti.loop_config(serialize=True)
         for i in range(self.model.particle_count):
@@ -205,39 +214,11 @@ class SelfCollision(Effect):
             releasing = sweep == SEPARATION_SWEEPS
             if sweep == 0 or releasing or self.moved[None] > 0:
                 if sweep > 0 and not releasing:
-                    self._unstretch(state)
+                    unstretch(self.model, state, self.unswept_x, self.lifted)
                 self.moved[None] = 0
                 for k in range(self.pairs.pair_count[None]):
                     self._sweep_pair(state, k, sweep == 0, releasing)
         self.pairs.keep_positions(state.x)
-
-    @ti.func
-    def _unstretch(self, state):
-        """Each stretch spring at a particle that a sweep has moved (``lifted``), longer than
-        both its length before the sweeps (``unswept_x``) and (1 + ``STRAIN_ALLOWANCE``) times
-        its rest length, shortened to the longer of the two: its ends moved along it by their
-        shares of inverse mass (Provot 1995's deformation constraint, on the springs the
-        projection stretched only). Putting a pair back moves its particles by up to the
-        thickness, a third of a 1.1 cm edge at a skirt's waist: unbounded, these moves stretched
-        the fastest spins' waists to 4.7–5 % at 150–180 bpm."""
-        model = self.model
-        inverse_mass = ti.static(model.particle_inv_mass)
-        allowance = model.real(1.0 + STRAIN_ALLOWANCE)
-        for i in range(model.particle_count):
-            if self.lifted[i]:
-                for k in range(model.particle_spring_start[i], model.particle_spring_start[i + 1]):
-                    spring = model.particle_spring[k]
-                    j = model.particle_neighbor[k]
-                    weight = inverse_mass[i] + inverse_mass[j]
-                    if spring < ti.static(model.stretch_count) and weight > 0:
-                        d = state.x[j] - state.x[i]
-                        length = d.norm()
-                        allowed = ti.max((self.unswept_x[j] - self.unswept_x[i]).norm(),
-                                         allowance * model.spring_rest_length[spring])
-                        if length > allowed:
-                            shift = (length - allowed) / (length * weight) * d
-                            state.x[i] += inverse_mass[i] * shift
-                            state.x[j] -= inverse_mass[j] * shift
 
     @ti.func
     def _sweep_pair(self, state, k, first, releasing):
@@ -407,6 +388,13 @@ class SelfCollision(Effect):
                 "self_collision_separations": int(self.separations[None]),
                 "self_collision_refusals": int(self.refusals[None]),
                 "self_collision_crossed": self.pairs.crossed_count()}
+
+    def fit_time_step(self, dt: float, integrator: str) -> None:
+        """The default stiffness (none given) at most ``STEP_STIFFNESS``/dt² for backward Euler,
+        whose blocks leave out the couplings between a pair's particles: with k̂·dt² ≫ 1 each
+        side moves as if the other held still, and the pair overshoots (docs/physics.md)."""
+        if not self.stiffness_given and integrator == "implicit":
+            self.stiffness = min(self.stiffness, STEP_STIFFNESS / dt ** 2)
 
     def stability_modes(self) -> list[tuple[float, float]]:
         """The penalty's mode, with up to ``CONTACTS_PER_PARTICLE`` contacts on one particle."""

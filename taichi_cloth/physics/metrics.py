@@ -124,3 +124,36 @@ class RunRecord:
     @property
     def max_self_intersections(self) -> int:
         return max((f.self_intersections for f in self.frames), default=0)
+
+
+def run_stats(simulation, record: RunRecord) -> dict:
+    """The ``stats.json`` document of ``simulation`` (a ``physics.simulation.Simulation``) after
+    the run in ``record`` (README, "Outputs")."""
+    scene = simulation.scene
+    return {
+        "scene": scene.name,
+        "integrator": scene.simulation.integrator,
+        "dt": simulation.time_step.dt,
+        "substeps_per_frame": simulation.time_step.substeps_per_frame,
+        "retries": record.retries,
+        "time_step": simulation.time_step.report(),
+        "precision": scene.simulation.precision,
+        "material": scene.material.name,
+        "frames": len(record.frames),
+        "particles": simulation.model.particle_count,
+        "springs": simulation.model.spring_count,
+        "springs_per_family": simulation.model.family_counts,
+        "capsules": simulation.body_rig.capsule_count if simulation.body_rig is not None else 0,
+        "effects": simulation.effect_names,
+        "finite": True,
+        "max_strain": record.max_strain,
+        "max_penetration": record.max_penetration,
+        "max_penetrating_samples": record.max_penetrating_samples,
+        "max_self_intersections": record.max_self_intersections,
+        "surface_samples": simulation.model.particle_count + len(simulation.surface_edges)
+        + len(simulation.garment.triangles),
+        "wall_seconds": {k: round(v, 4) for k, v in record.wall_seconds.items()},
+        **simulation.integrator.solver_report(record.cg_iterations),
+        **({"settle": simulation.settle_report} if simulation.settle_report is not None else {}),
+        "per_frame": [f.as_dict() for f in record.frames],
+    }

@@ -35,7 +35,8 @@ from taichi_cloth.physics.integrators import INTEGRATORS, make_integrator
 from taichi_cloth.physics.integrators.conjugate_gradient import SolverBreakdown
 from taichi_cloth.physics.intersections import IntersectionCounter
 from taichi_cloth.physics.metrics import (FrameMetrics, RunRecord, largest_stretch_strain,
-                                          spring_energy, state_problem, surface_penetration)
+                                          run_stats, spring_energy, state_problem,
+                                          surface_penetration)
 from taichi_cloth.physics.model import Model
 from taichi_cloth.physics.packed_grid import packed_grid_for
 from taichi_cloth.physics.rig import BodyRig
@@ -101,6 +102,8 @@ class Simulation:
         self.state_in, self.state_out, self.backup = self.states.members
         self._compiled_variants = set()
         self.time_step = self._choose_time_step()
+        for effect in self.effects:  # before any kernel compiles: what they read is baked in
+            effect.fit_time_step(self.time_step.dt, scene.simulation.integrator)
 
     @classmethod
     def from_scene(cls, scene: Scene | str, overrides: tuple[str, ...] = ()) -> "Simulation":
@@ -389,32 +392,5 @@ class Simulation:
         return record
 
     def stats(self, record: RunRecord) -> dict:
-        """The ``stats.json`` document (README, "Outputs")."""
-        scene = self.scene
-        return {
-            "scene": scene.name,
-            "integrator": scene.simulation.integrator,
-            "dt": self.time_step.dt,
-            "substeps_per_frame": self.time_step.substeps_per_frame,
-            "retries": record.retries,
-            "time_step": self.time_step.report(),
-            "precision": scene.simulation.precision,
-            "material": scene.material.name,
-            "frames": len(record.frames),
-            "particles": self.model.particle_count,
-            "springs": self.model.spring_count,
-            "springs_per_family": self.model.family_counts,
-            "capsules": self.body_rig.capsule_count if self.body_rig is not None else 0,
-            "effects": self.effect_names,
-            "finite": True,
-            "max_strain": record.max_strain,
-            "max_penetration": record.max_penetration,
-            "max_penetrating_samples": record.max_penetrating_samples,
-            "max_self_intersections": record.max_self_intersections,
-            "surface_samples": self.model.particle_count + len(self.surface_edges)
-            + len(self.garment.triangles),
-            "wall_seconds": {k: round(v, 4) for k, v in record.wall_seconds.items()},
-            **self.integrator.solver_report(record.cg_iterations),
-            **({"settle": self.settle_report} if self.settle_report is not None else {}),
-            "per_frame": [f.as_dict() for f in record.frames],
-        }
+        """The ``stats.json`` document (README, "Outputs"): ``metrics.run_stats``."""
+        return run_stats(self, record)
