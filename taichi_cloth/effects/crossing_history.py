@@ -21,6 +21,11 @@ so that σ changes only outside. While the pair was inside at the last commit an
 evaluation, its penalty uses the signed distance σ·h along σ·n (``oriented``): the same force as
 the unsigned one on its own side, continuous through h = 0, and growing with the depth on the
 wrong side, back towards σ. A pair that enters inside from outside takes the side it is on.
+The records' commits (``self_collision``) count as inside a pair within a thickness of it
+(``proximity.inside_within``): a vertex that passes a corner or an edge of a face closer than
+the cloth's thickness, where every vertex–triangle and edge–edge pair around is at its border,
+is then seen crossing by one of them; one that went round instead has no crossing to witness
+it, and its record gives way. The penalty keeps the exact inside, where it is continuous.
 """
 
 import taichi as ti

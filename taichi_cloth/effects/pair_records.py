@@ -17,7 +17,7 @@ import taichi as ti
 
 from taichi_cloth.effects import crossing_history
 from taichi_cloth.effects.proximity import (VERTEX_TRIANGLE, closest_offset, edge_edge_geometry,
-                                            pair_side, vertex_triangle_geometry)
+                                            inside_within, pair_side, vertex_triangle_geometry)
 
 
 @ti.data_oriented
@@ -85,10 +85,12 @@ class PairRecords:
             if not held and self.committed[None]:
                 geometry = ti.static(vertex_triangle_geometry if kind == VERTEX_TRIANGLE
                                      else edge_edge_geometry)
-                _share, inside, _normal, height, _offset = geometry(
+                _share, _inside, normal, height, offset = geometry(
                     self.reference_x[ids[0]], self.reference_x[ids[1]],
                     self.reference_x[ids[2]], self.reference_x[ids[3]], real)
-                record = crossing_history.record_from_here(inside, height)
+                record = crossing_history.record_from_here(
+                    inside_within(normal, height, offset, real(self.reach - self.padding)),
+                    height)
             self._find(owner, other, record)
 
     @ti.func

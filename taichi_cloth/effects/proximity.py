@@ -121,6 +121,16 @@ def edge_edge_geometry(a, b, c, d, real: ti.template()):
 
 
 @ti.func
+def inside_within(normal, height, offset, margin):
+    """Whether a pair's closest points are inside (``vertex_triangle_geometry``,
+    ``edge_edge_geometry``) or less than ``margin`` [m] from it: the ``offset`` between them,
+    less its part ``height`` along the unit ``normal``, at most ``margin`` long (0 inside: the
+    closest points are then the projections). 0 for a zero normal."""
+    lateral = offset - height * normal
+    return int(normal.norm_sqr() > 0 and lateral.norm_sqr() <= margin * margin)
+
+
+@ti.func
 def pair_side(x, kind, ids, real: ti.template()):
     """The pair of ``kind`` and particles ``ids`` at positions x: (its four particles' shares
     of the offset between its closest points; whether its closest points are inside; its unit

@@ -22,9 +22,9 @@ A pair remembers which side of each other its primitives belong on (``crossing_h
 its closest points stay inside (over the face; within both edges) d is signed, so a pair that
 has passed through itself is pushed back, not further through; and after every step
 (``apply``, the post step) a pair that crossed within it is put back on its side, without
-stretching the springs past their length before (``unstretch``) and only where that leaves no
-edges through faces around it, or fewer than before (a record that no crossing witnesses gives
-way, also after the step's other put-backs).
+stretching the springs past their length before (``unstretch``), only where edges pierce faces
+around it (a record that no crossing witnesses gives way, also after the step's other
+put-backs) and the move leaves fewer. For the records, inside is within a thickness of it.
 
 Candidate pairs (``effects/candidate_pairs.py``): every pair within the reach, thickness +
 padding, in one compact list, less the pairs within flat stretches of cloth, which hold no layers
@@ -51,7 +51,7 @@ from taichi_cloth.effects.base import Effect, EffectContext
 from taichi_cloth.effects.candidate_pairs import CandidatePairs
 from taichi_cloth.effects.penalty import normal_force_magnitude, penalty_terms
 from taichi_cloth.effects.piercing import intersections_around
-from taichi_cloth.effects.proximity import VERTEX_TRIANGLE, pair_geometry
+from taichi_cloth.effects.proximity import VERTEX_TRIANGLE, inside_within, pair_geometry
 from taichi_cloth.effects.unstretch import unstretch
 from taichi_cloth.errors import InputError
 from taichi_cloth.settings import setting
@@ -237,15 +237,17 @@ class SelfCollision(Effect):
         σ·n the normal of its side): x_i += λ·b_i·w_i·σn with λ = −C / Σ_i b_i²·w_i (w the
         inverse masses; pinned particles do not move), and the same for the velocities when
         Σ_i b_i·v_i·σn < 0. Momentum is kept (Σ b_i = 0); the pair's record is back on its side;
-        ``moved`` counts it. Unless the move leaves edges through faces around the pair
-        (``piercing.intersections_around``) and no fewer than it found (a move that mends
-        nothing there only trades one piercing for another): then the particles stay where
-        they were (``refusals`` counts it), and if there were none before, no crossing witnesses
-        the record (a hem gone round another layer's border between two points of the path)
-        and it takes the side the pair is on; else the record stays and the penalty pushes the
-        pair its way. In the last pass (``releasing``) only a crossed pair is looked at, and
-        nothing moves: with no edges through faces around it, its record takes the side it is
-        on."""
+        ``moved`` counts it. Only where edges pierce faces around the pair
+        (``piercing.intersections_around``): with none, no crossing witnesses the record (a hem
+        gone round another layer's border between two points of the path, or past its edge
+        within a thickness) and it takes the side the pair is on, nothing moved; and not where
+        the move leaves as many or more (it mends nothing there, only trades one piercing for
+        another): the particles then stay where they were and the record stays, the penalty
+        pushing the pair its way (``refusals`` counts both). Inside, for the records, is
+        within a thickness of it (``proximity.inside_within``: a vertex passing a face's corner
+        or edge closer than that, where every pair around it is at its border, is seen by
+        one). In the last pass (``releasing``) only a crossed pair is looked at, and nothing
+        moves: with no edges through faces around it, its record takes the side it is on."""
         real = self.model.real
         inverse_mass = ti.static(self.model.particle_inv_mass)
         record = self.pairs.record(k)
@@ -268,8 +270,10 @@ class SelfCollision(Effect):
                     at = [ti.select(round_ > 0,
                                     last[slot] + along * (state.x[ids[slot]] - last[slot]),
                                     state.x[ids[slot]]) for slot in ti.static(range(4))]
-                    on_share, on_inside, on_normal, on_height, _offset = pair_geometry(
+                    on_share, _inside, on_normal, on_height, on_offset = pair_geometry(
                         kind, at[0], at[1], at[2], at[3], real)
+                    on_inside = inside_within(on_normal, on_height, on_offset,
+                                              real(self.thickness))
                     if round_ == 0:
                         share, inside, normal, height = on_share, on_inside, on_normal, on_height
                     elif not crossing_history.is_crossed(record):
@@ -295,20 +299,21 @@ class SelfCollision(Effect):
                     # inlined piercing test for both; before only, in the last pass)
                     meeting = 0
                     refused = 0
-                    for round_ in range(2 - int(releasing)):
-                        count = intersections_around(self.model, state.x, ids, first_slots)
-                        if round_ == 0:
-                            meeting = count
-                            if not releasing:
-                                for slot in ti.static(range(4)):
-                                    state.x[ids[slot]] += lift * moves[slot]
-                        elif count > 0 and count >= meeting:
-                            refused = 1
+                    for round_ in range(2):
+                        if round_ == 0 or (meeting > 0 and not releasing):
+                            count = intersections_around(self.model, state.x, ids, first_slots)
+                            if round_ == 0:
+                                meeting = count
+                                if meeting > 0 and not releasing:
+                                    for slot in ti.static(range(4)):
+                                        state.x[ids[slot]] += lift * moves[slot]
+                            elif count >= meeting:
+                                refused = 1
                     if refused:
                         for slot in ti.static(range(4)):
                             state.x[ids[slot]] = unmoved[slot]
-                        self.refusals[None] += 1
-                    if releasing or refused:
+                    if releasing or refused or meeting == 0:
+                        self.refusals[None] += int(not releasing)
                         if meeting == 0:  # nothing witnesses the record: it gives way
                             self.pairs.set_record(k, crossing_history.record_from_here(
                                 inside, height))
