@@ -6,6 +6,7 @@ crossing edges against −∇ of the penalty energy ½·m·k̂·(thickness − d
 import collections
 import functools
 import json
+import math
 
 import meshio
 import numpy as np
@@ -20,6 +21,7 @@ from taichi_cloth.physics.metrics import RunRecord
 from taichi_cloth.physics.model import Model
 from taichi_cloth.physics.settling import settle
 from taichi_cloth.physics.simulation import Simulation
+from taichi_cloth.physics.timestep import TimeStep, fixed_time_step
 
 THICKNESS, K_HAT = 0.01, 1e4  # m, 1/s²
 MASS = np.array([0.1, 0.2, 0.3, 0.4, 0.5, 0.6])  # kg
@@ -122,23 +124,39 @@ def test_far_apart_nothing_acts():
 def test_unset_stiffness_stops_layers_closing_at_4_m_s_at_any_thickness(thickness):
     """Without a stiffness, k̂ = 10⁶·(4 mm / thickness)²: the penalty's energy over the whole
     thickness, ½·m·k̂·δ², is the kinetic energy ½·m·v² of layers closing at v = 4 m/s (the speed
-    it stops: docs/physics.md, "Tunnelling"), and ``dt = "auto"`` sees that stiffness; with
-    backward Euler's step of 1/60 s, k̂·dt² is at most 300 (10⁶ at 4 mm, less than 1.6·10⁷ at
-    1 mm), an explicit integrator's step leaves it. A stiffness given is kept."""
+    it stops: docs/physics.md, "Tunnelling"), and ``dt = "auto"`` sees that stiffness. Fitted to
+    a step of 1/60 s: kept for an explicit integrator whose step was chosen for it ("auto"), at
+    most 10⁶ for one whose step was given, at most 300/dt² for backward Euler (10⁶ at 4 mm, less
+    than 1.6·10⁷ at 1 mm). A stiffness given is kept."""
     rest = np.array([[-1.0, 0, -1], [1, 0, -1], [0, 0, 1], [0, 1, 0], [1, 1, 0], [0, 1, 1]])
-    model = Model(two_triangles(rest), "f64")
-    unset, given = assemble(model, [(SelfCollision, SelfCollisionSettings(thickness=thickness)),
-                                    (SelfCollision, SelfCollisionSettings(
-                                        thickness=thickness, stiffness=2e5))]).effects
-    assert 0.5 * unset.stiffness * thickness ** 2 == pytest.approx(0.5 * 4.0 ** 2, rel=1e-12)
-    assert unset.stability_modes()[0][0] == pytest.approx(4 * unset.stiffness, rel=1e-12)
-    stops_4_m_s = unset.stiffness
-    unset.fit_time_step(1 / 60, "symplectic")
-    assert unset.stiffness == stops_4_m_s
-    for effect in (unset, given):
-        effect.fit_time_step(1 / 60, "implicit")
-    assert unset.stiffness == min(stops_4_m_s, 300 * 60 ** 2)
-    assert given.stiffness == 2e5
+    unset = SelfCollisionSettings(thickness=thickness)
+    *fitted, given = assemble(Model(two_triangles(rest), "f64"), [
+        (SelfCollision, unset), (SelfCollision, unset), (SelfCollision, unset),
+        (SelfCollision, SelfCollisionSettings(thickness=thickness, stiffness=2e5))]).effects
+    stops_4_m_s = fitted[0].stiffness
+    assert 0.5 * stops_4_m_s * thickness ** 2 == pytest.approx(0.5 * 4.0 ** 2, rel=1e-12)
+    assert fitted[0].stability_modes()[0][0] == pytest.approx(4 * stops_4_m_s, rel=1e-12)
+    chosen, given_step = TimeStep(1 / 60, 2, "auto"), fixed_time_step(1 / 60, 1 / 30)
+    for effect, step, integrator, bound in ((fitted[0], chosen, "symplectic", math.inf),
+                                            (fitted[1], given_step, "symplectic", 1e6),
+                                            (fitted[2], chosen, "implicit", 300 * 60 ** 2)):
+        assert effect.fit_time_step(step, integrator) == (stops_4_m_s > bound)
+        assert effect.stiffness == min(stops_4_m_s, bound)
+    assert not given.fit_time_step(chosen, "implicit") and given.stiffness == 2e5
+
+
+def test_a_simulation_fits_the_unset_stiffness_to_its_step_before_its_kernels_read_it():
+    """`fold` with backward Euler at a 1 mm thickness: ``Simulation`` gives its self-collision
+    the stiffness fitted to the step it chose (at most 300/dt²), and its time step's report
+    (the highest frequency with the contact modes) is the one of that stiffness given in the
+    scene."""
+    overrides = ("simulation.integrator=implicit", "effects.self_collision.thickness=0.001")
+    simulation = Simulation.from_scene("fold", overrides)
+    effect = next(e for e in simulation.effects if e.name == "self_collision")
+    assert effect.stiffness == min(1.6e7, 300 / simulation.time_step.dt ** 2) < 1.6e7
+    given = Simulation.from_scene("fold", overrides + (
+        f"effects.self_collision.stiffness={effect.stiffness!r}",))
+    assert given.time_step == simulation.time_step
 
 
 def vertex_over_the_triangle(height: float, z: float = 0.2) -> np.ndarray:
@@ -296,11 +314,11 @@ def refused_step(physics, before: np.ndarray, after: np.ndarray, refusals: int =
 def test_a_crossing_that_no_triangles_witness_is_not_undone_into_meeting_ones():
     """Triangle 3–4–5 goes from above triangle 0–1–2 to wholly below it in one step, vertex 3
     through the face, 4 and 5 past its sides (the way a hem goes round another layer's border):
-    the record says the pair crossed, but no triangles meet. Putting vertex 3 back above would
-    make its edges pierce the face, so the post step leaves the positions as they are, counts a
-    refusal, and the pair takes the side it is on: the penalty then pushes vertex 3 down. (A
-    second refusal: edge 3–4, ending on the face's side 1–2, within a thickness of it, is seen
-    crossing that side the same way, and gives way too.)"""
+    the record says the pair crossed, but no edge pierces a face around it: nothing witnesses
+    the crossing, so the post step moves nothing, counts a refusal, and the pair takes the side
+    it is on: the penalty then pushes vertex 3 down. (A second refusal: edge 3–4, ending on the
+    face's side 1–2, within a thickness of it, is seen crossing that side the same way, and
+    gives way too.)"""
     before = np.array([[-1.0, 0, -1], [1, 0, -1], [0, 0, 1],
                        [0.1, 0.004, 0.2], [1.4, 0.004, 0.2], [0.1, 0.004, 1.5]])
     after = before.copy()

@@ -49,7 +49,8 @@ Genesis' ``force_fields.py``). What an effect declares:
   (½·ρ·C_d [kg/m³]): on a packed grid cloth the SIMD pass then computes each face once, in
   lanes, and each particle reads back its six (drag).
 - ``stability_modes()``: the (k̂ [1/s²], ζ) of each stiff mode it adds, for ``dt = "auto"``;
-  ``fit_time_step(dt, integrator)``: the step then chosen (self-collision's default stiffness).
+  ``fit_time_step(time_step, integrator)``: the step then chosen (self-collision's default
+  stiffness).
 - ``potential_energy(x, mass)`` [J], ``penetration_depths(points)`` [m] and
   ``frame_metrics(x, potential)`` (more per-frame values for ``stats.json``, by name, given the
   potential energy already taken): its metrics.
@@ -127,9 +128,11 @@ class Effect:
     def repair(self, state) -> None:
         """Mend a frame's end ``state`` that the cloth crossed itself in: nothing here."""
 
-    def fit_time_step(self, dt: float, integrator: str) -> None:
-        """The run's step dt [s] with ``integrator``, once chosen and before any kernel compiles
-        (a default that depends on it): nothing here."""
+    def fit_time_step(self, time_step, integrator: str) -> bool:
+        """The run's ``timestep.TimeStep`` with ``integrator``, once chosen and before any kernel
+        compiles (a default that depends on it); whether that changed its ``stability_modes``:
+        nothing here."""
+        return False
 
     @staticmethod
     def model_options(settings) -> dict:

@@ -65,7 +65,7 @@ PATH_POINTS = 4  # points of a step's straight path at which each pair's side re
 CONTACTS_PER_PARTICLE = 4  # the stiffness bound for dt = "auto": a vertex, corner and edge shares
 # the stiffness when the scene gives none: 10⁶ s⁻² at 4 mm, scaled by (4 mm / thickness)², so that
 # layers closing at up to thickness·√stiffness = 4 m/s (a twirling hem) are stopped at any thickness;
-# for backward Euler no more than STEP_STIFFNESS / dt² (``fit_time_step``)
+# for backward Euler no more than STEP_STIFFNESS / dt², for a fixed explicit step 10⁶ (``fit_time_step``)
 REFERENCE_STIFFNESS, REFERENCE_THICKNESS, STEP_STIFFNESS = 1e6, 0.004, 300.0  # 1/s², m, 1
 
 
@@ -77,7 +77,8 @@ class SelfCollisionSettings:
                                       doc="penalty stiffness per unit particle mass, 1/s²: "
                                           "layers meeting faster than thickness·√stiffness pass "
                                           "through; unset, 10⁶·(4 mm / thickness)²: 4 m/s "
-                                          "(``fit_time_step``)")
+                                          "(less where the step is too long for it: "
+                                          "``fit_time_step``)")
     damping: float = setting(0.5, "float", low=0.0, doc="normal damping ratio ζ")
     friction: float = setting(0.3, "float", low=0.0, doc="Coulomb coefficient μ")
 
@@ -116,7 +117,7 @@ class SelfCollision(Effect):
         self.post_step = self  # ``apply``: the side records after every step
         self.moved = ti.field(ti.i32, ())  # pairs a sweep of ``apply`` put back
         self.separations = ti.field(ti.i32, ())  # pairs put back since the start
-        self.refusals = ti.field(ti.i32, ())  # put-backs refused since the start (``_sweep_pair``)
+        self.refusals = ti.field(ti.i32, ())  # put-backs not made since the start (``_sweep_pair``)
         # per post step: the positions before its sweeps [m], whether a sweep moved a particle
         self.unswept_x = ti.Vector.field(3, real, model.particle_count)
         self.lifted = ti.field(ti.i32, model.particle_count)
@@ -384,9 +385,10 @@ class SelfCollision(Effect):
         """Candidate pairs dropped since the start (0 unless the capacities of
         ``candidate_pairs`` are too small for the scene: then contacts can be missed), the list's
         builds since the start, its pairs at the last build, the pairs put back onto their sides
-        since the start (``_sweep_pair``), and the listed pairs whose records say they are
-        crossed at the frame's end (0 unless the projection could not move one: every particle
-        of it pinned)."""
+        since the start (``_sweep_pair``), the put-backs not made since the start (no crossing
+        witnessed them, or they would not have mended it), and the listed pairs whose records say
+        they are crossed at the frame's end (0 unless a witnessed crossing could not be put
+        back: the move would mend nothing, or every particle of the pair is pinned)."""
         return {"self_collision_overflow": int(self.pairs.overflow[None]),
                 "self_collision_builds": int(self.pairs.rebuilds[None]),
                 "self_collision_pairs": int(self.pairs.pair_count[None]),
@@ -394,12 +396,19 @@ class SelfCollision(Effect):
                 "self_collision_refusals": int(self.refusals[None]),
                 "self_collision_crossed": self.pairs.crossed_count()}
 
-    def fit_time_step(self, dt: float, integrator: str) -> None:
-        """The default stiffness (none given) at most ``STEP_STIFFNESS``/dt² for backward Euler,
-        whose blocks leave out the couplings between a pair's particles: with k̂·dt² ≫ 1 each
-        side moves as if the other held still, and the pair overshoots (docs/physics.md)."""
+    def fit_time_step(self, time_step, integrator: str) -> bool:
+        """The default stiffness (none given) fitted to the run's ``TimeStep`` once chosen: for
+        backward Euler at most ``STEP_STIFFNESS``/dt² (its blocks leave out the couplings
+        between a pair's particles: with k̂·dt² ≫ 1 each side moves as if the other held still,
+        and the pair overshoots: docs/physics.md); for an explicit integrator with a step given
+        in seconds at most ``REFERENCE_STIFFNESS`` (that step was not chosen for more); with
+        dt = "auto" the step was chosen for it. Whether it changed."""
+        chosen = self.stiffness
         if not self.stiffness_given and integrator == "implicit":
-            self.stiffness = min(self.stiffness, STEP_STIFFNESS / dt ** 2)
+            self.stiffness = min(self.stiffness, STEP_STIFFNESS / time_step.dt ** 2)
+        elif not self.stiffness_given and time_step.requested != "auto":
+            self.stiffness = min(self.stiffness, REFERENCE_STIFFNESS)
+        return self.stiffness != chosen
 
     def stability_modes(self) -> list[tuple[float, float]]:
         """The penalty's mode, with up to ``CONTACTS_PER_PARTICLE`` contacts on one particle."""

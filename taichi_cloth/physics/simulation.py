@@ -102,8 +102,11 @@ class Simulation:
         self.state_in, self.state_out, self.backup = self.states.members
         self._compiled_variants = set()
         self.time_step = self._choose_time_step()
-        for effect in self.effects:  # before any kernel compiles: what they read is baked in
-            effect.fit_time_step(self.time_step.dt, scene.simulation.integrator)
+        # before any kernel compiles (what they read is baked in); the step again if that changed
+        # an effect's stiffness, so its report holds what the kernels use (the same dt)
+        if any([effect.fit_time_step(self.time_step, scene.simulation.integrator)
+                for effect in self.effects]):
+            self.time_step = self._choose_time_step()
 
     @classmethod
     def from_scene(cls, scene: Scene | str, overrides: tuple[str, ...] = ()) -> "Simulation":
