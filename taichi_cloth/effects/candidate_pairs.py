@@ -44,13 +44,15 @@ FOUND_PER_ITEM = 48  # the pairs one particle's or edge's walk may find
 
 @ti.data_oriented
 class CandidatePairs(PairRecords):
-    """The vertex–triangle and edge–edge pairs of a model's cloth within ``reach`` [m], kept
-    while the cloth deforms by less than half of ``padding`` [m] (module docstring)."""
+    """The vertex–triangle and edge–edge pairs of a model's cloth within ``reach`` = ``thickness``
+    + ``padding`` [m], kept while the cloth deforms by less than half of ``padding`` (module
+    docstring); ``thickness`` is also the records' margin (``PairRecords._consider``)."""
 
-    def __init__(self, model, reach: float, padding: float):
+    def __init__(self, model, thickness: float, padding: float):
         garment = model.garment
         self.model = model
-        self.reach, self.padding = reach, padding
+        self.thickness, self.padding = thickness, padding
+        self.reach = thickness + padding
         particles = model.particle_count
         self.triangle_count, self.edge_count = len(garment.triangles), len(garment.edges)
         # boxes [m]: a triangle's grown by the reach, an edge's by half of it
@@ -58,7 +60,7 @@ class CandidatePairs(PairRecords):
             ti.Vector.field(3, model.real, count)
             for count in (self.triangle_count, self.triangle_count, self.edge_count,
                           self.edge_count))
-        self.patches = MeshPatches(model, reach)
+        self.patches = MeshPatches(model, self.reach)
         self.corners = ti.Vector.field(3, ti.i32, self.triangle_count)
         self.ends = ti.Vector.field(2, ti.i32, self.edge_count)
         # the rebuild test: each particle's offset from the centroid at the last build

@@ -10,7 +10,7 @@ back to (docs/physics.md, "Self-collision").
 
 The host class provides ``model``, ``found``/``found_count`` (the rows), ``pair_count``,
 ``pair_kind``, ``pair_particles``, ``pair_slot`` (each pair's find), ``_find``,
-``_measure_deformation`` (which sets ``stale``) and ``rebuild_asked``.
+``_measure_deformation`` (which sets ``stale``), ``rebuild_asked``, ``reach`` and ``thickness``.
 """
 
 import taichi as ti
@@ -89,7 +89,7 @@ class PairRecords:
                     self.reference_x[ids[0]], self.reference_x[ids[1]],
                     self.reference_x[ids[2]], self.reference_x[ids[3]], real)
                 record = crossing_history.record_from_here(
-                    inside_within(normal, height, offset, real(self.reach - self.padding)),
+                    inside_within(normal, height, offset, real(self.thickness)),
                     height)
             self._find(owner, other, record)
 

@@ -112,8 +112,8 @@ class SelfCollision(Effect):
             self.stiffness = REFERENCE_STIFFNESS * (REFERENCE_THICKNESS / self.thickness) ** 2
         self.damping_ratio, self.friction = settings.damping, settings.friction
         self.padding = PADDING * settings.thickness  # m: the list holds pairs within reach
-        self.reach = settings.thickness + self.padding  # m
-        self.pairs = CandidatePairs(model, self.reach, self.padding)
+        self.pairs = CandidatePairs(model, settings.thickness, self.padding)
+        self.reach = self.pairs.reach  # m: thickness + padding
         self.post_step = self  # ``apply``: the side records after every step
         self.moved = ti.field(ti.i32, ())  # pairs a sweep of ``apply`` put back
         self.separations = ti.field(ti.i32, ())  # pairs put back since the start
