@@ -46,7 +46,7 @@ test: setup
 # PC2 point cache of a short hula run and reads the animated points back (scripts/check-blender.py)
 check-blender: setup
 	test -x .venv-blender/bin/python || $(PYTHON) -m venv .venv-blender
-	.venv-blender/bin/python -m pip install --quiet bpy==5.0.1 numpy==2.4.6
+	.venv-blender/bin/python -m pip install --quiet bpy==5.0.1 numpy==1.26.4
 	$(PY) -m taichi_cloth simulate hula --frames 6 --set "cloth.resolution=[32,14]" --quiet \
 		--meshes obj,usd,pc2 --out output/check-blender
 	.venv-blender/bin/python scripts/check-blender.py output/check-blender/meshes

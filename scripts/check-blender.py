@@ -7,8 +7,11 @@ obj,usd,pc2``.
 It imports ``animation.usd`` (``bpy.ops.wm.usd_import``) and, in a fresh file, ``cloth.obj``
 with a Mesh Cache modifier on ``cloth.pc2`` (default axes), and at three frames compares the
 cloth's evaluated world-space vertices with that frame's OBJ file (``cloth_NNNNN.obj``, y up,
-which Blender shows z up: (x, y, z) → (x, −z, y)). It prints one line per check and exits 1 if any
-differs by more than float32 rounding (1e-5 m). Only NumPy and bpy: nothing of taichi_cloth.
+which Blender shows z up: (x, y, z) → (x, −z, y)): the OBJ's vertices for the point cache, and
+for the stage, which has one vertex per particle, the OBJ's distinct positions in the order they
+first appear (the OBJ repeats a seam's particles after all of them, for their second UVs). The
+stage's UV layer must hold one UV per face corner. It prints one line per check and exits 1 if
+any differs by more than float32 rounding (1e-5 m). Only NumPy and bpy: nothing of taichi_cloth.
 """
 
 import sys
@@ -25,6 +28,12 @@ def obj_points(path: Path) -> np.ndarray:
                      for line in path.read_text().splitlines() if line.startswith("v ")])
 
 
+def welded(points: np.ndarray) -> np.ndarray:
+    """The distinct rows of ``points``, in the order they first appear."""
+    _, first = np.unique(points, axis=0, return_index=True)
+    return points[np.sort(first)]
+
+
 def evaluated_points(obj) -> np.ndarray:
     evaluated = obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
     return np.array([(evaluated.matrix_world @ v.co)[:] for v in evaluated.data.vertices])
@@ -34,11 +43,12 @@ def z_up(points: np.ndarray) -> np.ndarray:
     return np.stack([points[:, 0], -points[:, 2], points[:, 1]], axis=1)
 
 
-def check(label: str, obj, folder: Path, frames) -> bool:
+def check(label: str, obj, folder: Path, frames, weld: bool = False) -> bool:
     good = True
     for frame in frames:
         bpy.context.scene.frame_set(frame)
-        expected = z_up(obj_points(folder / f"cloth_{frame:05d}.obj"))
+        expected = obj_points(folder / f"cloth_{frame:05d}.obj")
+        expected = z_up(welded(expected) if weld else expected)
         points = evaluated_points(obj)
         error = float(np.abs(points - expected).max()) if points.shape == expected.shape \
             else float("inf")
@@ -53,7 +63,11 @@ def main(folder: Path) -> int:
     bpy.ops.wm.read_factory_settings(use_empty=True)
     bpy.ops.wm.usd_import(filepath=str(folder / "animation.usd"))
     cloth = next(o for o in bpy.data.objects if o.type == "MESH" and o.name.startswith("Cloth"))
-    good = check("usd", cloth, folder, chosen)
+    good = check("usd", cloth, folder, chosen, weld=True)
+    uv_layer = cloth.data.uv_layers.active
+    corners = len(cloth.data.loops)
+    good &= uv_layer is not None and len(uv_layer.data) == corners
+    print(f"usd UVs: {len(uv_layer.data) if uv_layer else 0} for {corners} face corners")
     bpy.ops.wm.read_factory_settings(use_empty=True)
     bpy.ops.wm.obj_import(filepath=str(folder / "cloth.obj"))
     obj = bpy.context.selected_objects[0]

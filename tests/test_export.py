@@ -76,10 +76,13 @@ def obj_vertices(path) -> np.ndarray:
 
 
 def test_usd_stage_holds_the_animation(hula_meshes):
-    """pxr reads animation.usd: y up, metres, 30 fps from frame 0 to FRAMES; the cloth's points
-    at every frame are that frame's OBJ vertices (float32), its normals unit, its UVs one per
-    point; every capsule's transform carries its local segment (0, 0, ±height/2) onto the
-    body's capsule ends at that frame's time."""
+    """pxr reads animation.usd: y up, metres, 30 fps from frame 0 to FRAMES; the cloth is the
+    simulated mesh: its points at every frame are that frame's PLY points (float32) and its
+    triangles the PLY's (the skirt's seam not split: the triangles on either side share their
+    vertices, so a self-intersection test on the stage sees no seam), its normals unit, its UVs
+    one per face corner, none wrapping, those of the corners away from the seam the OBJ's of
+    their vertex; every capsule's transform carries its local segment (0, 0, ±height/2) onto
+    the body's capsule ends at that frame's time."""
     from pxr import Usd, UsdGeom
     stage = Usd.Stage.Open(str(hula_meshes / "animation.usd"))
     assert UsdGeom.GetStageUpAxis(stage) == UsdGeom.Tokens.y
@@ -88,14 +91,25 @@ def test_usd_stage_holds_the_animation(hula_meshes):
     assert (stage.GetStartTimeCode(), stage.GetEndTimeCode()) == (0, FRAMES)
     mesh = UsdGeom.Mesh(stage.GetPrimAtPath("/World/Cloth"))
     assert mesh.GetPointsAttr().GetTimeSamples() == list(range(WRITTEN))
-    st = UsdGeom.PrimvarsAPI(mesh).GetPrimvar("st").Get()
+    triangles = np.array(mesh.GetFaceVertexIndicesAttr().Get()).reshape(-1, 3)
+    assert set(mesh.GetFaceVertexCountsAttr().Get()) == {3}
+    st = UsdGeom.PrimvarsAPI(mesh).GetPrimvar("st")
+    assert st.GetInterpolation() == UsdGeom.Tokens.faceVarying
+    corner_uvs = np.array(st.Get()).reshape(-1, 3, 2)
+    assert corner_uvs.shape == (len(triangles), 3, 2)
+    assert np.ptp(corner_uvs[..., 0], axis=1).max() < 1.5 / COLUMNS  # no triangle wraps
+    obj = meshio.read(hula_meshes / "cloth_00000.obj")
+    unsplit = (triangles_of(obj) < COLUMNS * ROWS).all(axis=1)  # the OBJ's seam copies follow
+    assert 0 < unsplit.sum() < len(triangles)
+    np.testing.assert_allclose(corner_uvs[unsplit],
+                               obj.point_data["obj:vt"][triangles_of(obj)[unsplit]], atol=1e-6)
     for frame in range(WRITTEN):
+        ply = meshio.read(hula_meshes / f"cloth_{frame:05d}.ply")
+        assert (triangles == triangles_of(ply)).all()
         points = np.array(mesh.GetPointsAttr().Get(frame))
-        np.testing.assert_allclose(points, obj_vertices(hula_meshes / f"cloth_{frame:05d}.obj"),
-                                   atol=2e-6)
+        np.testing.assert_allclose(points, ply.points, atol=2e-6)
         normals = np.array(mesh.GetNormalsAttr().Get(frame))
         np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-5)
-        assert len(st) == len(points)
     body = Body("hula")
     pose = body.pose(2 / 30)
     ends = np.concatenate([pose.capsule_a, pose.display_capsule_a]), \
@@ -198,6 +212,11 @@ def test_obj_carries_uvs_with_the_seam_column_duplicated(hula_meshes):
     assert np.ptp(uv[triangles][..., 0], axis=1).max() < 1.5 / COLUMNS  # no triangle wraps
     text = path.read_text()
     assert "mtllib cloth.mtl" in text and "\nf 1/1 " in text  # faces reference their UVs
+    # the copies are said at the top, and are the seam column's particles
+    assert text.splitlines()[1].startswith(
+        f"# {ROWS} of these {COLUMNS * ROWS + ROWS} vertices repeat a particle at a UV seam")
+    np.testing.assert_array_equal(mesh.points[COLUMNS * ROWS:],
+                                  mesh.points[:COLUMNS * ROWS:COLUMNS])
     seam_copies = mesh.points[COLUMNS * ROWS:]
     np.testing.assert_array_equal(seam_copies, mesh.points[:COLUMNS * ROWS:COLUMNS])
     assert "map_Kd pareo.png" in (hula_meshes / "cloth.mtl").read_text()

@@ -28,12 +28,28 @@ def obj_topology(triangles: np.ndarray, uvs=None) -> str:
         obj_lines("f %d/%d %d/%d %d/%d\n", np.repeat(faces, 2, axis=1))
 
 
-def write_obj(target: Path, points: np.ndarray, topology: str, material: str = "") -> None:
+def seam_comment(source: np.ndarray) -> str:
+    """OBJ comment lines saying which vertices of a seam-split layout (``source``: each vertex's
+    particle, ``Garment.uv_layout``) repeat a particle for its second UVs, "" when none does: a
+    self-intersection test on the file must weld them (the triangles on either side of the seam
+    meet there without sharing a vertex index)."""
+    source = np.asarray(source)
+    _, first = np.unique(source, return_index=True)
+    copies = np.setdiff1d(np.arange(len(source)), first)
+    if not len(copies):
+        return ""
+    return (f"# {len(copies)} of these {len(source)} vertices repeat a particle at a UV seam, "
+            f"for its second UVs (the simulated mesh has {len(first)}): weld coincident "
+            f"vertices before testing for self-intersections\n")
+
+
+def write_obj(target: Path, points: np.ndarray, topology: str, material: str = "",
+              note: str = "") -> None:
     """A Wavefront OBJ, atomically: v lines of ``points`` and the ``topology`` text
     (``obj_topology``), with ``mtllib <material>.mtl`` + ``usemtl <material>`` when
-    ``material`` is named."""
-    header = "# taichi_cloth\n" + (f"mtllib {material}.mtl\nusemtl {material}\n" if material
-                                   else "")
+    ``material`` is named, after the ``note`` (comment lines, ``seam_comment``)."""
+    header = "# taichi_cloth\n" + note + (f"mtllib {material}.mtl\nusemtl {material}\n"
+                                          if material else "")
     with atomic_path(target) as temporary:
         temporary.write_text(header + obj_lines("v %.6f %.6f %.6f\n", np.asarray(points))
                              + topology, encoding="utf-8")
@@ -150,6 +166,7 @@ class MeshSeries:
         if "obj" in self.formats:
             self.obj_topology = obj_topology(*(uv_layout[2], uv_layout[1]) if uv_layout
                                              else (self.triangles,))
+            self.obj_note = seam_comment(uv_layout[0]) if uv_layout else ""
 
     def append(self, frame: int, t: float, points: np.ndarray) -> None:
         """The meshes of ``frame`` at simulated time ``t`` [s], vertex positions ``points`` [m]."""
@@ -157,7 +174,8 @@ class MeshSeries:
         for file_format in self.formats:
             if file_format == "obj":
                 shown = points[self.uv_layout[0]] if self.uv_layout is not None else points
-                write_obj(stem.with_suffix(".obj"), shown, self.obj_topology, self.material)
+                write_obj(stem.with_suffix(".obj"), shown, self.obj_topology, self.material,
+                          self.obj_note)
             elif file_format in ("ply", "vtu"):
                 write_meshio(stem.with_suffix(f".{file_format}"), points, self.triangles,
                              file_format)

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from taichi_cloth.output.files import atomic_path
-from taichi_cloth.output.meshes import obj_topology, write_obj
+from taichi_cloth.output.meshes import obj_topology, seam_comment, write_obj
 
 PC2_SIGNATURE = b"POINTCACHE2\0"
 
@@ -48,7 +48,8 @@ class PointCache:
         if self.first is None:
             self.first = frame
             write_obj(self.directory / "cloth.obj", points,
-                      obj_topology(self.triangles, self.uvs), self.material)
+                      obj_topology(self.triangles, self.uvs), self.material,
+                      seam_comment(self.source))
         self.frames.append(points.astype(np.float32))
 
     def finish(self) -> None:

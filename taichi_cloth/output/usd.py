@@ -4,9 +4,12 @@ Description.
 
 ``meshes/animation.usd`` (binary crate) holds, under the default prim ``/World``:
 
-- ``Cloth``: a UsdGeomMesh whose ``points`` and ``normals`` (per vertex: the area-weighted sum
-  of the adjacent triangles' normals, normalised) are time-sampled at every frame, with its
-  triangles, its UVs as ``primvars:st`` (the seam-split layout of ``Garment.uv_layout``, so no
+- ``Cloth``: a UsdGeomMesh whose ``points`` (one per particle: the simulated mesh itself, so
+  triangles on either side of a UV seam share their vertices, as they do in the simulation) and
+  ``normals`` (per vertex: the area-weighted sum of the adjacent triangles' normals,
+  normalised, so the shading runs on across a seam) are time-sampled at every frame, with its
+  triangles, its UVs as ``primvars:st`` per face corner (faceVarying: a corner on a seam takes
+  the side of its own triangle, from the seam-split layout of ``Garment.uv_layout``, so no
   triangle's UVs wrap), ``extent`` per frame, and a UsdPreviewSurface material that reads the
   scene's texture (copied beside the file) or has the cloth colour;
 - ``Body`` (when the scene has one): every collision and display capsule as a UsdGeomCapsule
@@ -67,13 +70,14 @@ class UsdAnimation:
     def __init__(self, target: Path, uv_layout, fps: float, color, texture: str = "",
                  body=None):
         """uv_layout: (source particle (V,), uvs (V, 2), triangles (T, 3)) of the cloth's
-        seam-split layout (``Garment.uv_layout``); ``texture``: an image file name beside
-        ``target`` ("" for the plain ``color``, RGB in [0, 1]); ``body``: the scene's
-        ``body.dancer.Body`` or prop (None without one)."""
+        seam-split layout (``Garment.uv_layout``): the stage's triangles are the particles'
+        (source[triangles]), each corner with the UV of its split vertex; ``texture``: an image
+        file name beside ``target`` ("" for the plain ``color``, RGB in [0, 1]); ``body``: the
+        scene's ``body.dancer.Body`` or prop (None without one)."""
         Usd, UsdGeom, UsdShade, Sdf, Gf, Vt = self.pxr = import_pxr()
         self.target, self.fps, self.body = Path(target), float(fps), body
-        self.source, uvs, triangles = uv_layout
-        self.triangles = np.asarray(triangles)
+        source, uvs, split_triangles = (np.asarray(part) for part in uv_layout)
+        self.triangles = source[split_triangles]
         self.stage = stage = Usd.Stage.CreateInMemory()
         UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
         UsdGeom.SetStageMetersPerUnit(stage, 1.0)
@@ -88,8 +92,8 @@ class UsdAnimation:
         mesh.CreateDoubleSidedAttr(True)
         mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
         st = UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray,
-                                                     UsdGeom.Tokens.vertex)
-        st.Set(Vt.Vec2fArray.FromNumpy(np.asarray(uvs, np.float32)))
+                                                     UsdGeom.Tokens.faceVarying)
+        st.Set(Vt.Vec2fArray.FromNumpy(uvs[split_triangles.ravel()].astype(np.float32)))
         UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(
             self._material(texture, color))
         self.capsules = []
@@ -135,7 +139,7 @@ class UsdAnimation:
         """Frame ``frame`` at time ``t`` [s]: the cloth's particle ``positions`` (N, 3) [m] and
         the body posed at t."""
         Usd, UsdGeom, UsdShade, Sdf, Gf, Vt = self.pxr
-        points = np.asarray(positions, np.float32)[self.source]
+        points = np.asarray(positions, np.float32)
         pose = self.body.pose(t) if self.body is not None else None
         self.mesh.GetPointsAttr().Set(Vt.Vec3fArray.FromNumpy(points), frame)
         self.mesh.GetNormalsAttr().Set(Vt.Vec3fArray.FromNumpy(
