@@ -9,9 +9,11 @@ with a Mesh Cache modifier on ``cloth.pc2`` (default axes), and at three frames 
 cloth's evaluated world-space vertices with that frame's OBJ file (``cloth_NNNNN.obj``, y up,
 which Blender shows z up: (x, y, z) → (x, −z, y)): the OBJ's vertices for the point cache, and
 for the stage, which has one vertex per particle, the OBJ's distinct positions in the order they
-first appear (the OBJ repeats a seam's particles after all of them, for their second UVs). The
-stage's UV layer must hold one UV per face corner. It prints one line per check and exits 1 if
-any differs by more than float32 rounding (1e-5 m). Only NumPy and bpy: nothing of taichi_cloth.
+first appear (the OBJ repeats a particle on a UV seam for each of its other UVs; its first
+copy comes in particle order). The stage's UVs, one per face corner, must be the OBJ's UVs of
+the same corners (the faces are in the same order). It prints one line per check and exits 1
+if any differs by more than float32 rounding (1e-5 m, or 1e-5 in UV). Only NumPy and bpy:
+nothing of taichi_cloth.
 """
 
 import sys
@@ -26,6 +28,16 @@ TOLERANCE = 1e-5  # m
 def obj_points(path: Path) -> np.ndarray:
     return np.array([[float(c) for c in line.split()[1:4]]
                      for line in path.read_text().splitlines() if line.startswith("v ")])
+
+
+def obj_corner_uvs(path: Path) -> np.ndarray:
+    """The UV of every face corner of an OBJ with ``f v/vt`` faces, face by face."""
+    lines = path.read_text().splitlines()
+    uvs = np.array([[float(c) for c in line.split()[1:3]] for line in lines
+                    if line.startswith("vt ")])
+    corners = [int(corner.split("/")[1]) - 1 for line in lines if line.startswith("f ")
+               for corner in line.split()[1:]]
+    return uvs[corners]
 
 
 def welded(points: np.ndarray) -> np.ndarray:
@@ -65,9 +77,12 @@ def main(folder: Path) -> int:
     cloth = next(o for o in bpy.data.objects if o.type == "MESH" and o.name.startswith("Cloth"))
     good = check("usd", cloth, folder, chosen, weld=True)
     uv_layer = cloth.data.uv_layers.active
-    corners = len(cloth.data.loops)
-    good &= uv_layer is not None and len(uv_layer.data) == corners
-    print(f"usd UVs: {len(uv_layer.data) if uv_layer else 0} for {corners} face corners")
+    expected = obj_corner_uvs(folder / "cloth_00000.obj")
+    uvs = np.array([uv.uv[:] for uv in uv_layer.data]) if uv_layer else np.zeros((0, 2))
+    error = float(np.abs(uvs - expected).max()) if uvs.shape == expected.shape else float("inf")
+    good &= error <= TOLERANCE
+    print(f"usd UVs: {len(uvs)} for {len(expected)} face corners, largest difference "
+          f"{error:.2e}")
     bpy.ops.wm.read_factory_settings(use_empty=True)
     bpy.ops.wm.obj_import(filepath=str(folder / "cloth.obj"))
     obj = bpy.context.selected_objects[0]

@@ -80,9 +80,9 @@ def test_usd_stage_holds_the_animation(hula_meshes):
     simulated mesh: its points at every frame are that frame's PLY points (float32) and its
     triangles the PLY's (the skirt's seam not split: the triangles on either side share their
     vertices, so a self-intersection test on the stage sees no seam), its normals unit, its UVs
-    one per face corner, none wrapping, those of the corners away from the seam the OBJ's of
-    their vertex; every capsule's transform carries its local segment (0, 0, ±height/2) onto
-    the body's capsule ends at that frame's time."""
+    one per face corner (indexed: the seam-split layout's), each the OBJ's UV at that corner
+    (the OBJ's faces are in the same order), none wrapping; every capsule's transform carries
+    its local segment (0, 0, ±height/2) onto the body's capsule ends at that frame's time."""
     from pxr import Usd, UsdGeom
     stage = Usd.Stage.Open(str(hula_meshes / "animation.usd"))
     assert UsdGeom.GetStageUpAxis(stage) == UsdGeom.Tokens.y
@@ -95,14 +95,13 @@ def test_usd_stage_holds_the_animation(hula_meshes):
     assert set(mesh.GetFaceVertexCountsAttr().Get()) == {3}
     st = UsdGeom.PrimvarsAPI(mesh).GetPrimvar("st")
     assert st.GetInterpolation() == UsdGeom.Tokens.faceVarying
-    corner_uvs = np.array(st.Get()).reshape(-1, 3, 2)
+    corner_uvs = np.array(st.ComputeFlattened()).reshape(-1, 3, 2)
     assert corner_uvs.shape == (len(triangles), 3, 2)
+    assert len(st.Get()) == COLUMNS * ROWS + ROWS  # one per vertex of the seam-split layout
     assert np.ptp(corner_uvs[..., 0], axis=1).max() < 1.5 / COLUMNS  # no triangle wraps
     obj = meshio.read(hula_meshes / "cloth_00000.obj")
-    unsplit = (triangles_of(obj) < COLUMNS * ROWS).all(axis=1)  # the OBJ's seam copies follow
-    assert 0 < unsplit.sum() < len(triangles)
-    np.testing.assert_allclose(corner_uvs[unsplit],
-                               obj.point_data["obj:vt"][triangles_of(obj)[unsplit]], atol=1e-6)
+    np.testing.assert_allclose(corner_uvs, obj.point_data["obj:vt"][triangles_of(obj)],
+                               atol=1e-6)
     for frame in range(WRITTEN):
         ply = meshio.read(hula_meshes / f"cloth_{frame:05d}.ply")
         assert (triangles == triangles_of(ply)).all()
@@ -212,11 +211,9 @@ def test_obj_carries_uvs_with_the_seam_column_duplicated(hula_meshes):
     assert np.ptp(uv[triangles][..., 0], axis=1).max() < 1.5 / COLUMNS  # no triangle wraps
     text = path.read_text()
     assert "mtllib cloth.mtl" in text and "\nf 1/1 " in text  # faces reference their UVs
-    # the copies are said at the top, and are the seam column's particles
+    # the copies (the seam column's particles) are said at the top
     assert text.splitlines()[1].startswith(
         f"# {ROWS} of these {COLUMNS * ROWS + ROWS} vertices repeat a particle at a UV seam")
-    np.testing.assert_array_equal(mesh.points[COLUMNS * ROWS:],
-                                  mesh.points[:COLUMNS * ROWS:COLUMNS])
     seam_copies = mesh.points[COLUMNS * ROWS:]
     np.testing.assert_array_equal(seam_copies, mesh.points[:COLUMNS * ROWS:COLUMNS])
     assert "map_Kd pareo.png" in (hula_meshes / "cloth.mtl").read_text()
@@ -345,3 +342,15 @@ def test_stale_frames_of_a_longer_run_are_removed(tmp_path):
                      meshes=("ply",))
     assert sorted(p.name for p in meshes.iterdir()) == ["cloth_00000.ply", "cloth_00001.ply"]
     assert Path(tmp_path / "stats.json").exists()
+
+
+def test_seam_comment_counts_the_copies_wherever_they_are():
+    """A mesh garment's layout repeats a seam's particles among the others (one vertex per
+    distinct particle and UV): the comment counts the copies and the particles, and a layout
+    without copies has none."""
+    from taichi_cloth.output.meshes import seam_comment
+    assert seam_comment(np.array([0, 1, 1, 2, 2, 2, 3])) == (
+        "# 3 of these 7 vertices repeat a particle at a UV seam, for its other UVs (the "
+        "simulated mesh has 4): weld coincident vertices before testing for "
+        "self-intersections\n")
+    assert seam_comment(np.arange(5)) == ""

@@ -29,17 +29,17 @@ def obj_topology(triangles: np.ndarray, uvs=None) -> str:
 
 
 def seam_comment(source: np.ndarray) -> str:
-    """OBJ comment lines saying which vertices of a seam-split layout (``source``: each vertex's
-    particle, ``Garment.uv_layout``) repeat a particle for its second UVs, "" when none does: a
-    self-intersection test on the file must weld them (the triangles on either side of the seam
-    meet there without sharing a vertex index)."""
+    """An OBJ comment line saying how many vertices of a seam-split layout (``source``: each
+    vertex's particle, ``Garment.uv_layout``) repeat a particle for its other UVs, "" when none
+    does: a self-intersection test on the file must weld them (the triangles on either side of
+    the seam meet there without sharing a vertex index)."""
     source = np.asarray(source)
     _, first = np.unique(source, return_index=True)
     copies = np.setdiff1d(np.arange(len(source)), first)
     if not len(copies):
         return ""
     return (f"# {len(copies)} of these {len(source)} vertices repeat a particle at a UV seam, "
-            f"for its second UVs (the simulated mesh has {len(first)}): weld coincident "
+            f"for its other UVs (the simulated mesh has {len(first)}): weld coincident "
             f"vertices before testing for self-intersections\n")
 
 

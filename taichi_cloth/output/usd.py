@@ -8,9 +8,9 @@ Description.
   triangles on either side of a UV seam share their vertices, as they do in the simulation) and
   ``normals`` (per vertex: the area-weighted sum of the adjacent triangles' normals,
   normalised, so the shading runs on across a seam) are time-sampled at every frame, with its
-  triangles, its UVs as ``primvars:st`` per face corner (faceVarying: a corner on a seam takes
-  the side of its own triangle, from the seam-split layout of ``Garment.uv_layout``, so no
-  triangle's UVs wrap), ``extent`` per frame, and a UsdPreviewSurface material that reads the
+  triangles, its UVs as ``primvars:st`` per face corner (faceVarying, indexed: the UVs of the
+  seam-split layout of ``Garment.uv_layout`` and each corner's index into them, so a corner on a
+  seam takes the side of its own triangle and no triangle's UVs wrap), ``extent`` per frame, and a UsdPreviewSurface material that reads the
   scene's texture (copied beside the file) or has the cloth colour;
 - ``Body`` (when the scene has one): every collision and display capsule as a UsdGeomCapsule
   (axis Z, its radius and segment length) under an Xform whose translation (the segment's
@@ -93,7 +93,8 @@ class UsdAnimation:
         mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
         st = UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray,
                                                      UsdGeom.Tokens.faceVarying)
-        st.Set(Vt.Vec2fArray.FromNumpy(uvs[split_triangles.ravel()].astype(np.float32)))
+        st.Set(Vt.Vec2fArray.FromNumpy(uvs.astype(np.float32)))
+        st.SetIndices(Vt.IntArray(split_triangles.ravel().tolist()))
         UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(
             self._material(texture, color))
         self.capsules = []
