@@ -150,8 +150,10 @@ class MeshSeries:
     """One object's meshes, frame after frame, in each of ``formats`` under ``directory``:
     ``<name>_00000.obj|ply|vtu`` per frame, and for the run (written by ``finish``)
     ``<name>.xdmf`` and, with VTU, the collection ``<name>.pvd`` of every frame from 0 (a
-    resumed run lists the earlier ones it finds on disk, frame k at k/``fps`` s). ``uv_layout`` = (source (V',), uvs (V', 2), triangles) from ``Garment.uv_layout``
-    gives the OBJ files texture coordinates and the material ``<name>.mtl``."""
+    resumed run lists the earlier ones it finds on disk, frame k at k/``fps`` s).
+    ``uv_layout`` = (source (V',), uvs (V', 2), triangles) from ``Garment.uv_layout`` gives the
+    OBJ files texture coordinates, the material ``<name>.mtl`` and the comment on the seam's
+    copies (``seam_comment``)."""
 
     def __init__(self, directory: Path, name: str, formats, triangles: np.ndarray,
                  uv_layout=None, material: bool = False, fps: float = 30.0):

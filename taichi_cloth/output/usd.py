@@ -10,8 +10,9 @@ Description.
   normalised, so the shading runs on across a seam) are time-sampled at every frame, with its
   triangles, its UVs as ``primvars:st`` per face corner (faceVarying, indexed: the UVs of the
   seam-split layout of ``Garment.uv_layout`` and each corner's index into them, so a corner on a
-  seam takes the side of its own triangle and no triangle's UVs wrap), ``extent`` per frame, and a UsdPreviewSurface material that reads the
-  scene's texture (copied beside the file) or has the cloth colour;
+  seam takes the side of its own triangle and no triangle's UVs wrap), ``extent`` per frame,
+  and a UsdPreviewSurface material that reads the scene's texture (copied beside the file) or
+  has the cloth colour;
 - ``Body`` (when the scene has one): every collision and display capsule as a UsdGeomCapsule
   (axis Z, its radius and segment length) under an Xform whose translation (the segment's
   midpoint) and orientation (the rotation of +Z onto the segment) are time-sampled.
