@@ -199,3 +199,32 @@ def test_an_effect_costs_interval_holds_the_median_95_percent_of_the_time(count)
     rank = median_interval_ranks(count)
     inner = rank + 1  # P(the (r+1)-th and (n−r)-th smallest hold the median)
     assert 1 - 2 * sum(math.comb(count, k) for k in range(inner)) / 2 ** count < 0.95
+
+
+def test_a_scene_with_self_collision_is_run_again_without_it_for_its_cost_per_step(monkeypatch):
+    """`--scene fold` (it declares self-collision): after its whole run, a second one with
+    ``effects.self_collision=false``; the row that follows says the difference in stepping
+    seconds per step beside the scene's spring pass, and the report prints it. A scene without
+    self-collision is run once. The parts are replaced by stand-ins (this checks what is run and
+    the arithmetic, not what is measured)."""
+    from taichi_cloth.studies import bench
+    runs = []
+
+    def scene_run(name, overrides=()):
+        runs.append((name, tuple(overrides)))
+        stepping = 2.0 if overrides else 2.6
+        return {"benchmark": "scene-run", "scene": name, "stepping_seconds": stepping,
+                "steps": 480, "frames": 60}
+    monkeypatch.setattr(bench, "bench_effects", lambda *args: [])
+    monkeypatch.setattr(bench, "bench_passes", lambda name, *args: {
+        "benchmark": "passes", "scene": name, "springs_us_per_substep": 75.8})
+    monkeypatch.setattr(bench, "bench_scene_integrators", lambda *args: [])
+    monkeypatch.setattr(bench, "bench_scene_run", scene_run)
+    rows, _ = bench.run_bench(None, ["implicit"], ["fold", "drape"], 0.1, 1)
+    assert runs == [("fold", ()), ("fold", ("effects.self_collision=false",)), ("drape", ())]
+    cost = [row for row in rows if row["benchmark"] == "self-collision-run"]
+    assert len(cost) == 1 and cost[0]["scene"] == "fold" and cost[0]["steps"] == 480
+    assert cost[0]["us_per_step"] == pytest.approx(1e6 * 0.6 / 480, abs=0.05)  # 1,250 µs
+    line = bench.report(cost, {})
+    assert "fold self-collision over the whole run: 1250.0 µs a step (the spring pass: " \
+        "75.80 µs)" in line

@@ -20,7 +20,11 @@ the cost of each effect, from the scene with and without it measured in turns on
 frame from the same settled state, backward Euler's CG held at the same iterations a step (an
 effect the scene lacks is added with its defaults; a cost within the noise is reported as such,
 never negative; the iterations an effect adds or saves are reported apart), and the spring and
-contact passes on their own; by default also ``hula`` at 128 × 56.
+contact passes on their own; by default also ``hula`` at 128 × 56. A scene that declares
+self-collision is run whole a second time without it (``effects.self_collision=false``), and
+the difference in stepping seconds per step is what self-collision costs over the run, its
+list's rebuilds included, beside the spring pass (the issue's measure: the passes above time
+it from one settled state only; the two runs take different paths, so the figure is rough).
 """
 
 import time
@@ -231,6 +235,14 @@ def report(rows: list[dict], fits: dict) -> str:
                          f"per frame (at most {row['max_self_intersections']} pairs)"
                          + (f"; self-collision's list built {row['self_collision_builds']} "
                             f"times in {row['steps']} steps" if "steps" in row else ""))
+        elif kind == "self-collision-run":
+            springs = "" if "springs_us_per_substep" not in row else (
+                f" (the spring pass: {row['springs_us_per_substep']:.2f} µs)")
+            parts.append(f"{row['scene']} self-collision over the whole run: "
+                         f"{row['us_per_step']:.1f} µs a step{springs}, stepping "
+                         f"{row['stepping_seconds_with']:.2f} s with it and "
+                         f"{row['stepping_seconds_without']:.2f} s without in {row['steps']} "
+                         f"steps (two runs on different paths: a rough figure)")
         elif kind == "implicit-large-step":
             parts.append(f"implicit, {row['size']}x{row['size']} sheet, dt = 1/60 s: "
                          f"{format_rate(row['substeps_per_second'])} steps/s = "
@@ -271,12 +283,34 @@ def run_bench(sizes, integrators, scene_names, seconds: float, repeats: int,
             rows.extend(bench_scene_integrators(name, seconds, repeats, integrators))
             say(f"{name}: whole run")
             rows.append(bench_scene_run(name))
+            if "self_collision" in load_scene(name).effects:
+                say(f"{name}: whole run without self-collision")
+                rows.append(self_collision_run_cost(rows, bench_scene_run(
+                    name, ("effects.self_collision=false",))))
     if everything:
         say("hula at 128x56: whole run")
         rows.append(bench_scene_run("hula", FINE_HULA))
         say("implicit 64x64 at 1/60 s")
         rows.append(bench_implicit_frames(seconds, repeats))
     return rows, scaling_exponent([r for r in rows if r["benchmark"] == "reference"])
+
+
+def self_collision_run_cost(rows: list[dict], without: dict) -> dict:
+    """The row of what self-collision costs a step over a whole run: the scene's last whole
+    run in ``rows`` (with it) against ``without`` (the same scene without it), in stepping
+    seconds per step, with the spring pass of the scene's passes row when there is one."""
+    scene = without["scene"]
+    with_it = next(row for row in reversed(rows)
+                   if row["benchmark"] == "scene-run" and row["scene"] == scene)
+    passes = [row for row in rows if row["benchmark"] == "passes" and row["scene"] == scene]
+    steps = with_it["steps"]  # the frames' steps at the scene's step (a redone frame's not)
+    return {"benchmark": "self-collision-run", "scene": scene,
+            "stepping_seconds_with": with_it["stepping_seconds"],
+            "stepping_seconds_without": without["stepping_seconds"], "steps": steps,
+            "us_per_step": round(1e6 * (with_it["stepping_seconds"]
+                                        - without["stepping_seconds"]) / steps, 1),
+            **({"springs_us_per_substep": passes[-1]["springs_us_per_substep"]}
+               if passes else {})}
 
 
 def rows_document(rows: list[dict], fits: dict) -> list[dict]:
