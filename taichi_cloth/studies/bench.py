@@ -273,20 +273,23 @@ def run_bench(sizes, integrators, scene_names, seconds: float, repeats: int,
             rows.append(bench_numpy(size, seconds, repeats))
     if everything or scene_names is not None:
         for name in scene_names or REAL_SCENES:
+            passes = None
             if scene_names is not None or name == "hula":
                 say(f"{name}: effects")
                 rows.extend(bench_effects(name, seconds, repeats))
                 say(f"{name}: passes")
-                rows.append(bench_passes(name, seconds, repeats))
+                passes = bench_passes(name, seconds, repeats)
+                rows.append(passes)
             say(f"{name}: " + ("every integrator" if integrators is None
                                else ", ".join(integrators)))
             rows.extend(bench_scene_integrators(name, seconds, repeats, integrators))
             say(f"{name}: whole run")
-            rows.append(bench_scene_run(name))
+            whole = bench_scene_run(name)
+            rows.append(whole)
             if "self_collision" in load_scene(name).effects:
                 say(f"{name}: whole run without self-collision")
-                rows.append(self_collision_run_cost(rows, bench_scene_run(
-                    name, ("effects.self_collision=false",))))
+                rows.append(self_collision_run_cost(whole, bench_scene_run(
+                    name, ("effects.self_collision=false",)), passes))
     if everything:
         say("hula at 128x56: whole run")
         rows.append(bench_scene_run("hula", FINE_HULA))
@@ -295,22 +298,18 @@ def run_bench(sizes, integrators, scene_names, seconds: float, repeats: int,
     return rows, scaling_exponent([r for r in rows if r["benchmark"] == "reference"])
 
 
-def self_collision_run_cost(rows: list[dict], without: dict) -> dict:
-    """The row of what self-collision costs a step over a whole run: the scene's last whole
-    run in ``rows`` (with it) against ``without`` (the same scene without it), in stepping
-    seconds per step, with the spring pass of the scene's passes row when there is one."""
-    scene = without["scene"]
-    with_it = next(row for row in reversed(rows)
-                   if row["benchmark"] == "scene-run" and row["scene"] == scene)
-    passes = [row for row in rows if row["benchmark"] == "passes" and row["scene"] == scene]
+def self_collision_run_cost(with_it: dict, without: dict, passes: dict | None) -> dict:
+    """The row of what self-collision costs a step over a whole run: a scene's whole run
+    ``with_it`` against ``without`` it, in stepping seconds per step, with the spring pass of
+    the scene's ``passes`` row when it has one (None)."""
     steps = with_it["steps"]  # the frames' steps at the scene's step (a redone frame's not)
-    return {"benchmark": "self-collision-run", "scene": scene,
+    return {"benchmark": "self-collision-run", "scene": with_it["scene"],
             "stepping_seconds_with": with_it["stepping_seconds"],
             "stepping_seconds_without": without["stepping_seconds"], "steps": steps,
             "us_per_step": round(1e6 * (with_it["stepping_seconds"]
                                         - without["stepping_seconds"]) / steps, 1),
-            **({"springs_us_per_substep": passes[-1]["springs_us_per_substep"]}
-               if passes else {})}
+            **({"springs_us_per_substep": passes["springs_us_per_substep"]}
+               if passes is not None else {})}
 
 
 def rows_document(rows: list[dict], fits: dict) -> list[dict]:
