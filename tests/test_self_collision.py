@@ -97,6 +97,22 @@ def test_vertex_over_a_triangle_is_pushed_off_it_by_minus_the_energy_gradient():
     np.testing.assert_allclose(force.sum(axis=0), 0.0, atol=1e-12)
 
 
+def test_a_frame_redone_by_the_tunnelling_guard_stiffens_the_penalty_four_times_a_halving():
+    """``follow_redo(h)``: the stiffness the kernels read is 4^h times the run's (twice the
+    closing speed stopped for each halving of the step), and the run's again at h = 0: the
+    vertex 4 mm above the triangle (6 mm deep in the band) is pushed with m·4^h·k̂·6 mm."""
+    positions = np.array([[-1.0, 0, -1], [1, 0, -1], [0, 0, 1],
+                          [0.1, 0.004, 0.2], [0.1, 1.0, 0.2], [0.6, 1.0, 0.4]])
+    effect = two_triangle_physics()[3]
+    try:
+        for halvings in (1, 2, 0):
+            effect.follow_redo(halvings)
+            assert self_collision_force(positions)[3, 1] == pytest.approx(
+                MASS[3] * 4 ** halvings * K_HAT * 0.006, rel=1e-9)
+    finally:
+        effect.follow_redo(0)
+
+
 def test_crossing_edges_are_pushed_apart_by_minus_the_energy_gradient():
     """Edge 0–1 along x at y = 0 and edge 3–4 along z at y = 5 mm, the triangles turned away
     from each other: only the edge pair is within the thickness."""

@@ -275,7 +275,8 @@ def test_a_frame_that_tunnelled_is_redone_while_it_does_down_to_a_sixteenth_of_t
     frame at the last step tried, its crossings those of that try, and the run's step comes
     back afterwards. With ``redo_strain`` below any strain as well, and the strain (faked)
     halving with the step, so that each halving is worth another, the strain guard still stops
-    at dt/4 and counts only its own halvings."""
+    at dt/4 and counts only its own halvings. The effects are told of each tunnelling halving
+    before its try, and of the run's step after the last."""
     base = ("cloth.resolution=[6, 6]", "simulation.integrator=symplectic")  # dt "auto"
     guarded = Simulation(load_scene("sheet", base + ("simulation.redo_strain=1e-9",)))
     dt = guarded.time_step.dt
@@ -290,8 +291,11 @@ def test_a_frame_that_tunnelled_is_redone_while_it_does_down_to_a_sixteenth_of_t
     monkeypatch.setattr(guarded.intersections, "count", count)
     monkeypatch.setattr(simulation_module, "largest_stretch_strain",
                         lambda model, x: guarded.time_step.dt)
+    redone = []  # what the effects are told of each try (self-collision stiffens for it)
+    monkeypatch.setattr(guarded.effects[0], "follow_redo", redone.append)
     frame = guarded.run(1).frames[1]
     assert frame.extra["tunnelling_halvings"] == halvings and guarded.time_step.dt == dt
+    assert redone == [*range(1, halvings + 1), 0]
     assert frame.extra["strain_halvings"] == 2
     assert frame.self_intersections == crossings
     reference = Simulation(load_scene("sheet", base + (f"simulation.dt={dt / 2 ** halvings!r}",)))
@@ -308,5 +312,8 @@ def test_each_guard_counts_only_the_halvings_it_asked_for(monkeypatch):
     guarded = Simulation(load_scene("sheet", base))
     monkeypatch.setattr(guarded, "guards_crossings", True)
     monkeypatch.setattr(guarded.intersections, "count", lambda positions: 0)
+    redone = []
+    monkeypatch.setattr(guarded.effects[0], "follow_redo", redone.append)
     extra = guarded.run(1).frames[1].extra
     assert extra["strain_halvings"] in (1, 2) and extra["tunnelling_halvings"] == 0
+    assert set(redone) <= {0}  # a strain halving does not stiffen the effects

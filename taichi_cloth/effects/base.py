@@ -50,7 +50,9 @@ Genesis' ``force_fields.py``). What an effect declares:
   lanes, and each particle reads back its six (drag).
 - ``stability_modes()``: the (k̂ [1/s²], ζ) of each stiff mode it adds, for ``dt = "auto"``;
   ``fit_time_step(time_step, integrator)``: the step then chosen (self-collision's default
-  stiffness).
+  stiffness); ``follow_redo(halvings)``: a frame redone by the tunnelling guard at dt/2^halvings
+  (0: the run's step again), which a penalty whose stopping speed the step allows may stiffen
+  for (self-collision).
 - ``potential_energy(x, mass)`` [J], ``penetration_depths(points)`` [m] and
   ``frame_metrics(x, potential)`` (more per-frame values for ``stats.json``, by name, given the
   potential energy already taken): its metrics.
@@ -133,6 +135,10 @@ class Effect:
         compiles (a default that depends on it); whether that changed its ``stability_modes``:
         nothing here."""
         return False
+
+    def follow_redo(self, halvings: int) -> None:
+        """The frame is redone by the tunnelling guard at the run's step over 2^``halvings``
+        (0: the run's step again): nothing here."""
 
     @staticmethod
     def model_options(settings) -> dict:

@@ -39,6 +39,7 @@ where a hand-off to a second costs more than it gains at these sizes.
 
 Implicit integrator: per-particle blocks of each pair (w²-weighted), the couplings between a
 pair's particles left out; tunnelling, the thickness bound and the measured cost: docs/physics.md.
+The stiffness when the scene gives none: ``effects/self_collision_stiffness.py``.
 """
 
 from dataclasses import dataclass
@@ -52,6 +53,8 @@ from taichi_cloth.effects.candidate_pairs import CandidatePairs
 from taichi_cloth.effects.penalty import normal_force_magnitude, penalty_terms
 from taichi_cloth.effects.piercing import intersections_around
 from taichi_cloth.effects.proximity import VERTEX_TRIANGLE, inside_within, pair_geometry
+from taichi_cloth.effects.self_collision_stiffness import (default_stiffness, fitted_stiffness,
+                                                           redo_stiffness)
 from taichi_cloth.effects.unstretch import unstretch
 from taichi_cloth.errors import InputError
 from taichi_cloth.settings import setting
@@ -63,10 +66,6 @@ PATH_POINTS = 4  # points of a step's straight path at which each pair's side re
 # up to date (``_sweep_pair``): 1/4, 1/2, 3/4 and the end (the points before it only for a pair
 # inside at the end)
 CONTACTS_PER_PARTICLE = 4  # the stiffness bound for dt = "auto": a vertex, corner and edge shares
-# the stiffness when the scene gives none: 10⁶ s⁻² at 4 mm, scaled by (4 mm / thickness)², so that
-# layers closing at up to thickness·√stiffness = 4 m/s (a twirling hem) are stopped at any thickness;
-# for backward Euler no more than STEP_STIFFNESS / dt², for a fixed explicit step 10⁶ (``fit_time_step``)
-REFERENCE_STIFFNESS, REFERENCE_THICKNESS, STEP_STIFFNESS = 1e6, 0.004, 300.0  # 1/s², m, 1
 
 
 @dataclass(frozen=True)
@@ -76,9 +75,9 @@ class SelfCollisionSettings:
     stiffness: float | None = setting(None, "float", low=0.0, low_inclusive=False,
                                       doc="penalty stiffness per unit particle mass, 1/s²: "
                                           "layers meeting faster than thickness·√stiffness pass "
-                                          "through; unset, 10⁶·(4 mm / thickness)²: 4 m/s "
+                                          "through; unset, (4 m/s / thickness)²: 4 m/s "
                                           "(less where the step is too long for it: "
-                                          "``fit_time_step``)")
+                                          "``effects.self_collision_stiffness``)")
     damping: float = setting(0.5, "float", low=0.0, doc="normal damping ratio ζ")
     friction: float = setting(0.3, "float", low=0.0, doc="Coulomb coefficient μ")
 
@@ -109,8 +108,10 @@ class SelfCollision(Effect):
         self.thickness, self.stiffness = settings.thickness, settings.stiffness  # m, 1/s²
         self.stiffness_given = self.stiffness is not None
         if not self.stiffness_given:
-            self.stiffness = REFERENCE_STIFFNESS * (REFERENCE_THICKNESS / self.thickness) ** 2
+            self.stiffness = default_stiffness(self.thickness)
         self.damping_ratio, self.friction = settings.damping, settings.friction
+        # 1/s²: the stiffness the kernels read, the run's or a redone frame's (``follow_redo``)
+        self.stiffness_now = ti.field(real, ())
         self.padding = PADDING * settings.thickness  # m: the list holds pairs within reach
         self.pairs = CandidatePairs(model, settings.thickness, self.padding)
         self.reach = self.pairs.reach  # m: thickness + padding
@@ -130,7 +131,14 @@ class SelfCollision(Effect):
             self.pair_damping = ti.Matrix.field(3, 3, real, capacity)
 
     def upload(self) -> None:
+        self.model.uploads.add([(self.stiffness_now, np.array(self.stiffness))])
         self.pairs.upload()
+
+    def follow_redo(self, halvings: int) -> None:
+        """A frame redone by the tunnelling guard at the run's step over 2^``halvings``: the
+        stiffness (given or fitted) 4^halvings times the run's (``redo_stiffness``: each halving
+        also doubles the closing speed thickness·√k̂ stopped); the run's again at 0."""
+        self.stiffness_now[None] = redo_stiffness(self.stiffness, halvings)
 
     @ti.func
     def prepare(self, x, v, t):
@@ -175,7 +183,7 @@ class SelfCollision(Effect):
         its blocks would make release sticky)."""
         real = self.model.real
         depth = real(self.thickness) - distance
-        k_hat, zeta, mu = real(self.stiffness), real(self.damping_ratio), real(self.friction)
+        k_hat, zeta, mu = self.stiffness_now[None], real(self.damping_ratio), real(self.friction)
         active = normal.norm_sqr() > 0 and depth > 0 and normal_force_magnitude(
             mass, depth, relative_velocity.dot(normal), k_hat, zeta) > 0
         force = ti.Vector.zero(real, 3)
@@ -397,17 +405,12 @@ class SelfCollision(Effect):
                 "self_collision_crossed": self.pairs.crossed_count()}
 
     def fit_time_step(self, time_step, integrator: str) -> bool:
-        """The default stiffness (none given) fitted to the run's ``TimeStep`` once chosen: for
-        backward Euler at most ``STEP_STIFFNESS``/dt² (its blocks leave out the couplings
-        between a pair's particles: with k̂·dt² ≫ 1 each side moves as if the other held still,
-        and the pair overshoots: docs/physics.md); for an explicit integrator with a step given
-        in seconds at most ``REFERENCE_STIFFNESS`` (that step was not chosen for more); with
-        dt = "auto" the step was chosen for it. Whether it changed."""
+        """The default stiffness (none given) fitted to the run's ``TimeStep`` once chosen
+        (``fitted_stiffness``); whether it changed."""
         chosen = self.stiffness
-        if not self.stiffness_given and integrator == "implicit":
-            self.stiffness = min(self.stiffness, STEP_STIFFNESS / time_step.dt ** 2)
-        elif not self.stiffness_given and time_step.requested != "auto":
-            self.stiffness = min(self.stiffness, REFERENCE_STIFFNESS)
+        if not self.stiffness_given:
+            self.stiffness = fitted_stiffness(chosen, time_step.dt, integrator,
+                                              time_step.requested)
         return self.stiffness != chosen
 
     def stability_modes(self) -> list[tuple[float, float]]:

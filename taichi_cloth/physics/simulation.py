@@ -107,6 +107,8 @@ class Simulation:
         if any([effect.fit_time_step(self.time_step, scene.simulation.integrator)
                 for effect in self.effects]):
             self.time_step = self._choose_time_step()
+        for effect in self.effects:  # the kernels read the fitted stiffness
+            effect.follow_redo(0)
 
     @classmethod
     def from_scene(cls, scene: Scene | str, overrides: tuple[str, ...] = ()) -> "Simulation":
@@ -286,7 +288,9 @@ class Simulation:
         crossings, strain and depths in the metrics), while it ends
         - with more pairs of triangles through each other than it began with, even after the
           effects' ``repair`` (self-collision declared): down to dt/16
-          (``TUNNELLING_HALVINGS``: a layer that crosses the band in one step tunnels);
+          (``TUNNELLING_HALVINGS``: a layer that crosses the band in one step tunnels), each
+          such halving also stiffening the effects for the redo (``follow_redo``: a penalty
+          too weak for the closing speed tunnels at any step);
         - with a larger max strain than ``simulation.redo_strain``, or a surface sample deeper
           inside a collider than ``simulation.redo_penetration`` (each when set), unless a
           halving left it above ``REDO_GAIN`` of the try before: down to dt/4 (``REDO_HALVINGS``).
@@ -301,6 +305,8 @@ class Simulation:
             if halvings:
                 self._roll_back()
                 self.set_time_step(dt / 2 ** halvings, substeps * 2 ** halvings)
+                for effect in self.effects:
+                    effect.follow_redo(halved["tunnelling"])
             x = v = strain = None
             try:
                 self.advance_frame(frame, record, still)
@@ -335,6 +341,9 @@ class Simulation:
             for name in exceeded:
                 halved[name] += 1
         self.set_time_step(dt, substeps)
+        if halved["tunnelling"]:
+            for effect in self.effects:
+                effect.follow_redo(0)
         return problem, x, v, crossings, halved, strain, depth
 
     def _end_state(self):

@@ -1,0 +1,43 @@
+"""The stiffness k̂ [1/s²] of self-collision's penalty (``effects/self_collision.py``), when the
+scene gives none: chosen for the speed at which layers close, fitted to the run's step, and
+stiffened in a frame that the tunnelling guard redoes (docs/physics.md, "Tunnelling").
+
+Layers closing at v are stopped within the thickness h when the penalty's energy over it,
+½·m·k̂·h², is at least their kinetic energy ½·m·v²: k̂ = (v / h)², with v = ``REFERENCE_SPEED``
+(10⁶ at 4 mm). Faster folds (a skirt spun three turns a second and more) tunnel through it at
+any step: the tunnelling guard, which redoes such a frame at a half, a quarter, ... of the step,
+stiffens the penalty 4× a halving (``redo_stiffness``), k̂·dt² staying what the run's step was
+chosen for.
+"""
+
+REFERENCE_SPEED = 4.0  # m/s: layers closing up to this fast are stopped (a hem twirled once a second)
+FIXED_STEP_STIFFNESS = 1e6  # 1/s²: the most for an explicit step given in seconds (not chosen
+# for more; 4 m/s at 4 mm)
+STEP_STIFFNESS = 300.0  # k̂·dt² at most for backward Euler (its blocks leave out the couplings
+# between a pair's particles: with k̂·dt² ≫ 1 each side moves as if the other held still)
+REDO_STIFFENING = 4.0  # a frame the tunnelling guard redoes at half the step: 4 × the stiffness,
+# so twice the closing speed stopped (a fold closing faster than the penalty stops tunnels at any
+# step), with k̂·dt², and so the step's stability, as before
+
+
+def default_stiffness(thickness: float) -> float:
+    """(``REFERENCE_SPEED`` / thickness)² [1/s²], thickness in m (module docstring)."""
+    return (REFERENCE_SPEED / thickness) ** 2
+
+
+def fitted_stiffness(stiffness: float, dt: float, integrator: str, step_requested) -> float:
+    """The default ``stiffness`` [1/s²] fitted to the run's step dt [s]: for backward Euler at
+    most ``STEP_STIFFNESS``/dt²; for an explicit integrator with a step given in seconds
+    (``step_requested`` not "auto") at most ``FIXED_STEP_STIFFNESS``; with dt = "auto" the
+    step was chosen for it."""
+    if integrator == "implicit":
+        return min(stiffness, STEP_STIFFNESS / dt ** 2)
+    if step_requested != "auto":
+        return min(stiffness, FIXED_STEP_STIFFNESS)
+    return stiffness
+
+
+def redo_stiffness(stiffness: float, halvings: int) -> float:
+    """The stiffness [1/s²] of a frame redone by the tunnelling guard at the run's step over
+    2^``halvings``: ``REDO_STIFFENING``^halvings times the run's."""
+    return stiffness * REDO_STIFFENING ** halvings
