@@ -45,8 +45,8 @@ from taichi_cloth.physics.timestep import TimeStep, choose_time_step
 from taichi_cloth.runtime import start_taichi
 
 REDO_HALVINGS = 2  # a frame that overstretched or sank in is redone at dt/2, then dt/4
-TUNNELLING_HALVINGS = 4  # a frame that tunnelled: down to dt/16 while it still does (a layer
-# must not cross the band in a step: 1 mm at 4 m/s is 1/4,000 s, about `twirl`'s 1/240 s / 16)
+TUNNELLING_HALVINGS = 6  # a frame that tunnelled: down to dt/64 while it still does (a layer
+# must not cross the band in a step: 0.5 mm at 4 m/s is 1/8,000 s, `twirl`'s 1/240 s over 33)
 REDO_GAIN = 0.9  # a halving that leaves the strain (or depth) above this fraction of the try
 # before it shows one the step does not make (a tight garment): the frame is not halved again
 
@@ -287,7 +287,7 @@ class Simulation:
         samples' depths or None). A frame is redone at half the step, the last try kept (its
         crossings, strain and depths in the metrics), while it ends
         - with more pairs of triangles through each other than it began with, even after the
-          effects' ``repair`` (self-collision declared): down to dt/16
+          effects' ``repair`` (self-collision declared): down to dt/64
           (``TUNNELLING_HALVINGS``: a layer that crosses the band in one step tunnels), each
           such halving also stiffening the effects for the redo (``follow_redo``: a penalty
           too weak for the closing speed tunnels at any step);
