@@ -102,13 +102,12 @@ class Simulation:
         self.state_in, self.state_out, self.backup = self.states.members
         self._compiled_variants = set()
         self.time_step = self._choose_time_step()
-        # before any kernel compiles (what they read is baked in); the step again if that changed
-        # an effect's stiffness, so its report holds what the kernels use (the same dt)
+        # the step again if that changed an effect's stiffness, so its report holds what the
+        # kernels use (the same dt); then the effects set for the run's step (``_follow_redo``)
         if any([effect.fit_time_step(self.time_step, scene.simulation.integrator)
                 for effect in self.effects]):
             self.time_step = self._choose_time_step()
-        for effect in self.effects:  # the kernels read the fitted stiffness
-            effect.follow_redo(0)
+        self._follow_redo(0)
 
     @classmethod
     def from_scene(cls, scene: Scene | str, overrides: tuple[str, ...] = ()) -> "Simulation":
@@ -305,8 +304,7 @@ class Simulation:
             if halvings:
                 self._roll_back()
                 self.set_time_step(dt / 2 ** halvings, substeps * 2 ** halvings)
-                for effect in self.effects:
-                    effect.follow_redo(halved["tunnelling"])
+                self._follow_redo(halved["tunnelling"])
             x = v = strain = None
             try:
                 self.advance_frame(frame, record, still)
@@ -342,9 +340,14 @@ class Simulation:
                 halved[name] += 1
         self.set_time_step(dt, substeps)
         if halved["tunnelling"]:
-            for effect in self.effects:
-                effect.follow_redo(0)
+            self._follow_redo(0)
         return problem, x, v, crossings, halved, strain, depth
+
+    def _follow_redo(self, halvings: int) -> None:
+        """Tell every effect that the frame is tried at the run's step over 2^``halvings`` of
+        the tunnelling guard (0: the run's step; ``Effect.follow_redo``)."""
+        for effect in self.effects:
+            effect.follow_redo(halvings)
 
     def _end_state(self):
         """(x [m], v [m/s], x's largest stretch strain or None, ``metrics.state_problem``)
