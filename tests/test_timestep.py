@@ -266,17 +266,20 @@ def test_a_frame_sunk_past_redo_penetration_is_redone_at_a_smaller_step():
     assert frame.max_penetration == reference_frame.max_penetration > 0.01
 
 
-@pytest.mark.parametrize("mended_at, halvings, crossings", [(8, 3, 0), (128, 6, 1)])
+@pytest.mark.parametrize("mended_at, tunnelling, kept, crossings", [(8, 3, 6, 0),
+                                                                    (128, 6, 6, 1)])
 def test_a_frame_that_tunnelled_is_redone_while_it_does_down_to_a_64th_of_the_step(
-        monkeypatch, mended_at, halvings, crossings):
+        monkeypatch, mended_at, tunnelling, kept, crossings):
     """A frame that ends with more pairs of triangles through each other than it began with is
     redone at dt/2, dt/4, ... dt/64 while it still does (the crossings here counted as
-    one at any step above dt/``mended_at``, none below): the kept state is, bit for bit, that
-    frame at the last step tried, its crossings those of that try, and the run's step comes
-    back afterwards. With ``redo_strain`` below any strain as well, and the strain (faked)
-    halving with the step, so that each halving is worth another, the strain guard still stops
-    at dt/4 and counts only its own halvings. The effects are told of each tunnelling halving
-    before its try, and of the run's step after the last."""
+    one at any step above dt/``mended_at``, none below). With ``redo_strain`` below any strain
+    as well, and the strain (faked) halving with the step, so that each halving is worth
+    another, the strain guard goes on ``REDO_HALVINGS`` past the tunnelling guard's last, at
+    most to dt/64, and counts only its own halvings. The kept state is, bit for bit, that frame
+    at the last step tried (the least strained of the tries without crossings, or else with the
+    fewest), its crossings those of that try, and the run's step comes back afterwards. The
+    effects are told of each tunnelling halving before each try, and of the run's step after
+    the last."""
     base = ("cloth.resolution=[6, 6]", "simulation.integrator=symplectic")  # dt "auto"
     guarded = Simulation(load_scene("sheet", base + ("simulation.redo_strain=1e-9",)))
     dt = guarded.time_step.dt
@@ -294,11 +297,64 @@ def test_a_frame_that_tunnelled_is_redone_while_it_does_down_to_a_64th_of_the_st
     redone = []  # what the effects are told of each try (self-collision stiffens for it)
     monkeypatch.setattr(guarded.effects[0], "follow_redo", redone.append)
     frame = guarded.run(1).frames[1]
-    assert frame.extra["tunnelling_halvings"] == halvings and guarded.time_step.dt == dt
-    assert redone == [*range(1, halvings + 1), 0]
-    assert frame.extra["strain_halvings"] == 2
+    assert frame.extra["tunnelling_halvings"] == tunnelling and guarded.time_step.dt == dt
+    assert redone == [*range(1, tunnelling + 1), *[tunnelling] * (kept - tunnelling), 0]
+    assert frame.extra["strain_halvings"] == kept
     assert frame.self_intersections == crossings
-    reference = Simulation(load_scene("sheet", base + (f"simulation.dt={dt / 2 ** halvings!r}",)))
+    reference = Simulation(load_scene("sheet", base + (f"simulation.dt={dt / 2 ** kept!r}",)))
+    reference.run(1)
+    np.testing.assert_array_equal(guarded.positions(), reference.positions())
+
+
+@pytest.mark.parametrize("strains, kept, tries", [
+    ((0.5, 0.9, 0.7, 0.6), 0, 5),  # worse at dt/2, so on to dt/8, none better than dt: dt again
+    ((0.5, 0.9, 0.2, 0.1), 3, 4),  # worse at dt/2, then best at dt/8: the last try kept
+    ((0.5, 0.47, 0.1, 0.1), 1, 2),  # within REDO_GAIN of dt at dt/2 (the garment's): no dt/4
+    ((0.5, 0.52, 0.1, 0.1), 0, 3),  # the same, a little worse: dt again
+])
+def test_the_best_try_of_a_redone_frame_is_kept(monkeypatch, strains, kept, tries):
+    """A halving that leaves the strain within ``REDO_GAIN`` of the try before, either way, is
+    the last; one that makes it worse past that goes on. The frame kept is the try with the
+    least strain (of equals the longest step): when that is not the last, it is simulated
+    again, and the kept state is, bit for bit, that frame at that step, its strain and
+    halvings reported. The strain is faked as a function of the step."""
+    base = ("cloth.resolution=[6, 6]", "simulation.integrator=symplectic")  # dt "auto"
+    guarded = Simulation(load_scene("sheet", base + ("simulation.redo_strain=1e-9",)))
+    dt = guarded.time_step.dt
+    monkeypatch.setattr(simulation_module, "largest_stretch_strain", lambda model, x: strains[
+        round(math.log2(dt / guarded.time_step.dt))])
+    advance, steps = guarded.advance_frame, []
+    monkeypatch.setattr(guarded, "advance_frame", lambda *args: (
+        steps.append(guarded.time_step.dt), advance(*args))[1])
+    frame = guarded.run(1).frames[1]
+    assert len(steps) == tries and steps[-1] == dt / 2 ** kept and guarded.time_step.dt == dt
+    assert frame.extra["strain_halvings"] == kept and frame.max_strain == strains[kept]
+    reference = Simulation(load_scene("sheet", base + (f"simulation.dt={dt / 2 ** kept!r}",)))
+    reference.run(1)
+    np.testing.assert_array_equal(guarded.positions(), reference.positions())
+
+
+def test_a_try_that_tunnels_less_is_kept_before_one_that_stretches_less(monkeypatch):
+    """Crossing pairs come first: a frame that crosses at dt and not at smaller steps (counted
+    as faked), stretched least at dt and more at each smaller step, keeps its try at dt/2,
+    simulated again with the effects told of its one tunnelling halving."""
+    base = ("cloth.resolution=[6, 6]", "simulation.integrator=symplectic")  # dt "auto"
+    guarded = Simulation(load_scene("sheet", base + ("simulation.redo_strain=1e-9",)))
+    dt = guarded.time_step.dt
+    start = guarded.positions()
+    monkeypatch.setattr(guarded, "guards_crossings", True)
+    monkeypatch.setattr(guarded.intersections, "count", lambda positions: int(
+        not np.array_equal(positions, start) and guarded.time_step.dt == dt))
+    monkeypatch.setattr(simulation_module, "largest_stretch_strain", lambda model, x: {
+        dt: 0.1, dt / 2: 0.5, dt / 4: 0.9, dt / 8: 1.0}[guarded.time_step.dt])
+    redone = []
+    monkeypatch.setattr(guarded.effects[0], "follow_redo", redone.append)
+    frame = guarded.run(1).frames[1]
+    assert redone == [1, 1, 1, 1, 0]  # dt/2, dt/4, dt/8 (within REDO_GAIN: the last), dt/2
+    # again, the run's step
+    assert frame.extra["tunnelling_halvings"] == 1 and frame.extra["strain_halvings"] == 1
+    assert frame.self_intersections == 0 and frame.max_strain == 0.5
+    reference = Simulation(load_scene("sheet", base + (f"simulation.dt={dt / 2!r}",)))
     reference.run(1)
     np.testing.assert_array_equal(guarded.positions(), reference.positions())
 

@@ -15,10 +15,11 @@ two states swap. No Python loop over particles and no copy to the host happens i
 substep loop. Per frame the state is copied to NumPy once for the metrics (``physics.metrics``)
 and the stability check: a non-finite or exploded state is redone with the step halved, and in
 the end stops the run (``UnstableError``, exit code 3) before anything of that frame is written.
+The guards the scene declares redo a frame at smaller steps and keep its best try
+(``physics.redo_guards``, mixed in).
 """
 
 import dataclasses
-import math
 import sys
 import time
 
@@ -32,26 +33,19 @@ from taichi_cloth.errors import UnstableError
 from taichi_cloth.physics.control import Control
 from taichi_cloth.physics.forces import Forces
 from taichi_cloth.physics.integrators import INTEGRATORS, make_integrator
-from taichi_cloth.physics.integrators.conjugate_gradient import SolverBreakdown
 from taichi_cloth.physics.intersections import IntersectionCounter
 from taichi_cloth.physics.metrics import (FrameMetrics, RunRecord, largest_stretch_strain,
                                           run_stats, spring_energy, state_problem,
                                           surface_penetration)
 from taichi_cloth.physics.model import Model
 from taichi_cloth.physics.packed_grid import packed_grid_for
+from taichi_cloth.physics.redo_guards import RedoGuards
 from taichi_cloth.physics.rig import BodyRig
 from taichi_cloth.physics.snapshot import Snapshot
 from taichi_cloth.physics.timestep import TimeStep, choose_time_step
 from taichi_cloth.runtime import start_taichi
 
-REDO_HALVINGS = 2  # a frame that overstretched or sank in is redone at dt/2, then dt/4
-TUNNELLING_HALVINGS = 6  # a frame that tunnelled: down to dt/64 while it still does (a layer
-# must not cross the band in a step: 0.5 mm at 4 m/s is 1/8,000 s, `twirl`'s 1/240 s over 33)
-REDO_GAIN = 0.9  # a halving that leaves the strain (or depth) above this fraction of the try
-# before it shows one the step does not make (a tight garment): the frame is not halved again
-
-
-class Simulation:
+class Simulation(RedoGuards):
     """Everything a scene needs to run: rig, model, control, effects, forces, integrator, states,
     time step (module docstring)."""
 
@@ -279,69 +273,6 @@ class Simulation:
         where = "settling" if still else f"frame {frame}"
         raise UnstableError(f"{where}: the cloth {problem} with integrator '{integrator}' "
                             f"at dt = {self.time_step.dt:.6g} s{halvings}; {advice}", frame)
-
-    def _advance_refining(self, frame: int, record: RunRecord, still: bool):
-        """One try at ``frame`` from the backed-up state: (problem or None, x, v, crossing pairs
-        or None, the halvings of each guard, x's largest stretch strain or None, its surface
-        samples' depths or None). A frame is redone at half the step, the last try kept (its
-        crossings, strain and depths in the metrics), while it ends
-        - with more pairs of triangles through each other than it began with, even after the
-          effects' ``repair`` (self-collision declared): down to dt/64
-          (``TUNNELLING_HALVINGS``: a layer that crosses the band in one step tunnels), each
-          such halving also stiffening the effects for the redo (``follow_redo``: a penalty
-          too weak for the closing speed tunnels at any step);
-        - with a larger max strain than ``simulation.redo_strain``, or a surface sample deeper
-          inside a collider than ``simulation.redo_penetration`` (each when set), unless a
-          halving left it above ``REDO_GAIN`` of the try before: down to dt/4 (``REDO_HALVINGS``).
-        The step goes back to the run's afterwards: a frame that a smaller step cannot mend
-        costs that frame, not the run."""
-        dt, substeps = self.time_step.dt, self.time_step.substeps_per_frame
-        crossings = depth = None
-        refines = self.guards_crossings or bool(self.redo_limits)
-        before = dict.fromkeys(self.redo_limits, math.inf)
-        halved = dict.fromkeys(["tunnelling", *self.redo_limits], 0)
-        for halvings in range(max(TUNNELLING_HALVINGS, REDO_HALVINGS) + 1 if refines else 1):
-            if halvings:
-                self._roll_back()
-                self.set_time_step(dt / 2 ** halvings, substeps * 2 ** halvings)
-                self._follow_redo(halved["tunnelling"])
-            x = v = strain = None
-            try:
-                self.advance_frame(frame, record, still)
-                x, v, strain, problem = self._end_state()
-            except SolverBreakdown as breakdown:
-                problem = f"could not be solved for ({breakdown})"
-            if problem is not None or not refines:
-                break
-            tunnelled = False
-            if self.guards_crossings:
-                crossings = self.intersections.count(x)
-                if crossings > self._crossings:  # first the effects' own mend (``repair``)
-                    for effect in self.effects:
-                        effect.repair(self.state_in)
-                    x, v, strain, problem = self._end_state()
-                    if problem is not None:  # the mend left it unusable: ``guarded_frame``
-                        break
-                    crossings = self.intersections.count(x)
-                tunnelled = crossings > self._crossings
-            measured = {"strain": strain}
-            if "penetration" in self.redo_limits:
-                depth = self.surface_depth(x)
-                measured["penetration"] = float(depth.max(initial=0.0))
-            tunnelled = tunnelled and halvings < TUNNELLING_HALVINGS
-            exceeded = [name for name, limit in self.redo_limits.items()
-                        if limit < measured[name] < REDO_GAIN * before[name]
-                        and halvings < REDO_HALVINGS]
-            before = {name: measured[name] for name in self.redo_limits}
-            if not (tunnelled or exceeded):
-                break
-            halved["tunnelling"] += tunnelled
-            for name in exceeded:
-                halved[name] += 1
-        self.set_time_step(dt, substeps)
-        if halved["tunnelling"]:
-            self._follow_redo(0)
-        return problem, x, v, crossings, halved, strain, depth
 
     def _follow_redo(self, halvings: int) -> None:
         """Tell every effect that the frame is tried at the run's step over 2^``halvings`` of

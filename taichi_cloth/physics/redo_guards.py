@@ -1,0 +1,122 @@
+"""The redo guards: a frame redone from its start at half the step while it tunnelled, stretched
+or sank in past the scene's limits, and the best of its tries kept (docs/physics.md,
+"Tunnelling" and "Stability")."""
+
+import math
+
+from taichi_cloth.physics.integrators.conjugate_gradient import SolverBreakdown
+from taichi_cloth.physics.metrics import RunRecord
+
+REDO_HALVINGS = 3  # a frame that overstretched or sank in is redone at dt/2, dt/4, then dt/8
+TUNNELLING_HALVINGS = 6  # a frame that tunnelled: down to dt/64 while it still does (a layer
+# must not cross the band in a step: 0.5 mm at 4 m/s is 1/8,000 s, `twirl`'s 1/240 s over 33)
+REDO_GAIN = 0.9  # a halving that leaves the strain (or depth) within this factor of the try
+# before, either way, shows one the step does not make (a tight garment): not halved again
+
+
+class RedoGuards:
+    """``Simulation``'s frames refined by its guards (mixed in: it reads the simulation's
+    ``guards_crossings``, ``redo_limits``, ``_crossings``, ``effects``, ``intersections`` and
+    ``time_step``, and calls its ``advance_frame``, ``_end_state``, ``_roll_back``,
+    ``set_time_step``, ``_follow_redo`` and ``surface_depth``)."""
+
+    def _advance_refining(self, frame: int, record: RunRecord, still: bool):
+        """``frame`` from the backed-up state, refined: (problem or None, x, v, crossing pairs
+        or None, the halvings of each guard, x's largest stretch strain or None, its surface
+        samples' depths or None) of the try kept. A frame is redone at half the step while it
+        ends
+        - with more pairs of triangles through each other than it began with, even after the
+          effects' ``repair`` (self-collision declared): down to dt/64
+          (``TUNNELLING_HALVINGS``: a layer that crosses the band in one step tunnels), each
+          such halving also stiffening the effects for the redo (``follow_redo``: a penalty
+          too weak for the closing speed tunnels at any step);
+        - with a larger max strain than ``simulation.redo_strain``, or a surface sample deeper
+          inside a collider than ``simulation.redo_penetration`` (each when set), unless a
+          halving left it within ``REDO_GAIN`` of the try before, either way (then it is the
+          garment's, not the step's): down to dt/8 (``REDO_HALVINGS``), or as many halvings
+          past the tunnelling guard's in a frame that tunnelled (at most dt/64: a fold that
+          crossing-free smaller steps pushed apart hard, stretching the cloth 15 %, is redone
+          smaller still).
+        The try kept is the best (``_shortfall``; of equals the first, the longest step): the
+        last, unless a smaller step made the frame worse (a fold that met at another moment,
+        harder), when the best is simulated again (the same bits: a run is reproducible). The
+        step goes back to the run's afterwards: a frame that a smaller step cannot mend costs
+        that frame, not the run."""
+        dt, substeps = self.time_step.dt, self.time_step.substeps_per_frame
+        depth = None
+        refines = self.guards_crossings or bool(self.redo_limits)
+        before = dict.fromkeys(self.redo_limits, math.inf)
+        halved = dict.fromkeys(["tunnelling", *self.redo_limits], 0)
+        tries = []  # (shortfall, halvings, each guard's halvings) of each try measured
+        for halvings in range(max(TUNNELLING_HALVINGS, REDO_HALVINGS) + 1 if refines else 1):
+            if halvings:
+                self._step_for_try(dt, substeps, halvings, halved["tunnelling"])
+            problem, x, v, strain, crossings = self._try_frame(frame, record, still)
+            if problem is not None or not refines:
+                break
+            measured = {"strain": strain}
+            if "penetration" in self.redo_limits:
+                depth = self.surface_depth(x)
+                measured["penetration"] = float(depth.max(initial=0.0))
+            tries.append((self._shortfall(crossings, measured), halvings, dict(halved)))
+            tunnelled = self.guards_crossings and crossings > self._crossings \
+                and halvings < TUNNELLING_HALVINGS
+            deepest = min(halved["tunnelling"] + REDO_HALVINGS, TUNNELLING_HALVINGS)
+            exceeded = [name for name, limit in self.redo_limits.items()
+                        if limit < measured[name] and halvings < deepest
+                        and not REDO_GAIN * before[name] <= measured[name]
+                        <= before[name] / REDO_GAIN]
+            before = {name: measured[name] for name in self.redo_limits}
+            if not (tunnelled or exceeded):
+                break
+            halved["tunnelling"] += tunnelled
+            for name in exceeded:
+                halved[name] += 1
+        if problem is None and tries and min(tries)[0] < tries[-1][0]:
+            _, halvings, halved = min(tries)
+            self._step_for_try(dt, substeps, halvings, halved["tunnelling"])
+            problem, x, v, strain, crossings = self._try_frame(frame, record, still)
+            if problem is None and "penetration" in self.redo_limits:
+                depth = self.surface_depth(x)
+        self.set_time_step(dt, substeps)
+        if halved["tunnelling"]:
+            self._follow_redo(0)
+        return problem, x, v, crossings, halved, strain, depth
+
+    def _step_for_try(self, dt: float, substeps: int, halvings: int, tunnelling: int) -> None:
+        """The backed-up state put back for a try at the run's step ``dt`` [s] (``substeps``
+        a frame) over 2^``halvings``, the effects told of the ``tunnelling`` halvings among
+        them (``_follow_redo``)."""
+        self._roll_back()
+        self.set_time_step(dt / 2 ** halvings, substeps * 2 ** halvings)
+        self._follow_redo(tunnelling)
+
+    def _try_frame(self, frame: int, record: RunRecord, still: bool):
+        """One try at ``frame`` at the step set: (problem or None, x [m], v [m/s], x's largest
+        stretch strain or None, crossing pairs or None: counted when self-collision is
+        declared), the effects' own mend (``repair``) made first when it ends with more
+        crossing pairs than the frame began with."""
+        try:
+            self.advance_frame(frame, record, still)
+        except SolverBreakdown as breakdown:
+            return f"could not be solved for ({breakdown})", None, None, None, None
+        x, v, strain, problem = self._end_state()
+        crossings = None
+        if problem is None and self.guards_crossings:
+            crossings = self.intersections.count(x)
+            if crossings > self._crossings:
+                for effect in self.effects:
+                    effect.repair(self.state_in)
+                x, v, strain, problem = self._end_state()
+                if problem is None:  # (else unusable: ``guarded_frame`` retries)
+                    crossings = self.intersections.count(x)
+        return problem, x, v, strain, crossings
+
+    def _shortfall(self, crossings: int | None, measured: dict) -> tuple[int, float]:
+        """How far a try falls short of its guards, the smaller the better: (its crossing pairs
+        beyond the frame's start, 0 when not counted; the largest ratio of a measure to its
+        limit, 1 for a try within all of them)."""
+        excess = 0 if crossings is None else max(crossings - self._crossings, 0)
+        worst = max([measured[name] / limit for name, limit in self.redo_limits.items()],
+                    default=1.0)
+        return excess, max(worst, 1.0)
