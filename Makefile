@@ -43,13 +43,16 @@ test: setup
 	$(PY) -m pytest -q -n 2 tests
 
 # Blender (pip's bpy, Blender 5.0 as a Python module, ~350 MB) imports the USD stage and the OBJ +
-# PC2 point cache of a short hula run and reads the animated points back (scripts/check-blender.py)
+# PC2 point cache of a short hula run and reads the animated points back (scripts/check-blender.py),
+# then counts the crossings of a second of twirl's PLY meshes (scripts/check-crossings-blender.py)
 check-blender: setup
 	test -x .venv-blender/bin/python || $(PYTHON) -m venv .venv-blender
 	.venv-blender/bin/python -m pip install --quiet bpy==5.0.1 numpy==1.26.4
 	$(PY) -m taichi_cloth simulate hula --frames 6 --set "cloth.resolution=[32,14]" --quiet \
 		--meshes obj,usd,pc2 --out output/check-blender
 	.venv-blender/bin/python scripts/check-blender.py output/check-blender/meshes
+	$(PY) -m taichi_cloth simulate twirl --frames 30 --quiet --meshes ply --out output/check-crossings
+	.venv-blender/bin/python scripts/check-crossings-blender.py output/check-crossings
 
 clean:
 	find output -mindepth 1 ! -name .gitkeep -exec rm -rf {} +

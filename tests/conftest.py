@@ -36,3 +36,14 @@ def taichi_runtime(request):
         os.environ["TI_OFFLINE_CACHE_FILE_PATH"] = str(
             Path.home() / ".cache" / "taichi" / f"ticache-{worker}")
     start_taichi(request.config.getoption("--arch"))
+
+
+@pytest.fixture(scope="session")
+def blender_python() -> Path:
+    """The Python of Blender's module venv (``make check-blender`` installs pip's bpy there,
+    ~350 MB: not in CI); the test is skipped where it is absent."""
+    python = Path(__file__).resolve().parents[1] / ".venv-blender" / "bin" / "python"
+    if not python.exists():
+        pytest.skip("Blender's Python module is not installed: `make check-blender` installs "
+                    "it (pip's bpy, ~350 MB) and runs this check")
+    return python

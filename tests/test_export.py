@@ -25,7 +25,6 @@ FRAMES = 3  # simulated; files are written for frames 0 (the start) … FRAMES
 WRITTEN = FRAMES + 1
 COLUMNS, ROWS = 16, 8
 FORMATS = ("obj", "ply", "vtu", "xdmf", "usd", "pc2")
-BLENDER_PYTHON = Path(__file__).resolve().parents[1] / ".venv-blender" / "bin" / "python"
 
 
 @pytest.fixture(scope="module")
@@ -153,12 +152,9 @@ def test_usd_without_usd_core_is_one_line_exit_2_before_simulating(tmp_path, mon
     assert not (out / "stats.json").exists()
 
 
-@pytest.mark.skipif(not BLENDER_PYTHON.exists(),
-                    reason="Blender's Python module is not installed: `make check-blender` "
-                           "installs it (pip's bpy, ~350 MB) and runs this check")
-def test_blender_reads_the_usd_stage_and_the_point_cache(hula_meshes):
-    result = subprocess.run([str(BLENDER_PYTHON), "scripts/check-blender.py", str(hula_meshes)],
-                            cwd=BLENDER_PYTHON.parents[2], capture_output=True, text=True,
+def test_blender_reads_the_usd_stage_and_the_point_cache(hula_meshes, blender_python):
+    result = subprocess.run([str(blender_python), "scripts/check-blender.py", str(hula_meshes)],
+                            cwd=blender_python.parents[2], capture_output=True, text=True,
                             timeout=300)
     assert result.returncode == 0, result.stdout + result.stderr
 

@@ -7,6 +7,7 @@ import collections
 import functools
 import json
 import math
+import subprocess
 
 import meshio
 import numpy as np
@@ -502,9 +503,11 @@ def fold_runs(tmp_path_factory):
     simulation.run(FOLD_FRAMES, keep, record)
     out = tmp_path_factory.mktemp("fold_off")
     assert main(["simulate", "fold", "--quiet", "--frames", str(FOLD_FRAMES), "--set", FOLD[0],
-                 "--out", str(out), "--set", "effects.self_collision=false"]) == 0
+                 "--out", str(out), "--set", "effects.self_collision=false",
+                 "--meshes", "ply"]) == 0
     return {"on": simulation.stats(record), "off": json.loads((out / "stats.json").read_text()),
-            "simulation": simulation, "kept": kept["snapshot"], "last": simulation.positions()}
+            "off_folder": out, "simulation": simulation, "kept": kept["snapshot"],
+            "last": simulation.positions()}
 
 
 def test_fold_never_passes_through_itself_and_does_without_self_collision(fold_runs):
@@ -514,6 +517,19 @@ def test_fold_never_passes_through_itself_and_does_without_self_collision(fold_r
     assert on["per_frame"][-1]["self_collision_overflow"] == 0
     assert on["max_strain"] < 0.1 and on["max_penetration"] < 0.004
     assert off["max_self_intersections"] > 0
+
+
+def test_blender_counts_the_crossings_of_each_frame_as_the_metric_does(fold_runs,
+                                                                        blender_python):
+    """An independent reader: Blender's PLY importer and its BVH's triangle–triangle overlap
+    (``scripts/check-crossings-blender.py``) count, in every written frame of `fold` without
+    self-collision, as many pairs of triangles through each other as ``stats.json`` says."""
+    assert fold_runs["off"]["max_self_intersections"] > 0  # (frames that cross to count)
+    result = subprocess.run([str(blender_python), "scripts/check-crossings-blender.py",
+                             str(fold_runs["off_folder"])], cwd=blender_python.parents[2],
+                            capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0 and "differs" not in result.stdout, \
+        result.stdout + result.stderr
 
 
 def test_fold_restored_from_its_snapshot_takes_the_very_same_steps(fold_runs):
