@@ -306,19 +306,25 @@ def test_a_frame_that_tunnelled_is_redone_while_it_does_down_to_a_64th_of_the_st
     np.testing.assert_array_equal(guarded.positions(), reference.positions())
 
 
-@pytest.mark.parametrize("strains, kept, tries", [
-    ((0.5, 0.9, 0.7, 0.6), 0, 5),  # worse at dt/2, so on to dt/8, none better than dt: dt again
-    ((0.5, 0.9, 0.2, 0.1), 3, 4),  # worse at dt/2, then best at dt/8: the last try kept
-    ((0.5, 0.47, 0.1, 0.1), 1, 2),  # within REDO_GAIN of dt at dt/2 (the garment's): no dt/4
-    ((0.5, 0.52, 0.1, 0.1), 0, 3),  # the same, a little worse: dt again
+@pytest.mark.parametrize("strains, began, kept, tries", [
+    ((0.5, 0.9, 0.7, 0.6), None, 0, 4),  # worse at dt/2, on to dt/8, none better than dt: dt's
+    ((0.5, 0.9, 0.2, 0.1), None, 3, 4),  # worse at dt/2, then best at dt/8: the last try
+    ((0.5, 0.47, 0.1, 0.1), None, 1, 2),  # within REDO_GAIN of dt at dt/2 in a frame that
+    # began stretched (faked as at dt: the garment's): no dt/4
+    ((0.5, 0.52, 0.1, 0.1), None, 0, 2),  # the same, a little worse: dt's
+    ((0.5, 0.47, 0.2, 0.1), 0.0, 3, 4),  # the same in a frame that began unstretched: on
 ])
-def test_the_best_try_of_a_redone_frame_is_kept(monkeypatch, strains, kept, tries):
+@pytest.mark.parametrize("integrator", ["symplectic", "implicit"])
+def test_the_best_try_of_a_redone_frame_is_kept(monkeypatch, strains, began, kept, tries,
+                                                integrator):
     """A halving that leaves the strain within ``REDO_GAIN`` of the try before, either way, is
-    the last; one that makes it worse past that goes on. The frame kept is the try with the
-    least strain (of equals the longest step): when that is not the last, it is simulated
-    again, and the kept state is, bit for bit, that frame at that step, its strain and
-    halvings reported. The strain is faked as a function of the step."""
-    base = ("cloth.resolution=[6, 6]", "simulation.integrator=symplectic")  # dt "auto"
+    the last in a frame that began past ``redo_strain`` (``began``: the strain at its start,
+    measured by the run where None); one that makes it worse past that goes on. The frame kept is the try with the
+    least strain: when that is not the last, its end is put back, and the kept state is, bit
+    for bit, that frame at that step (with what the integrator carries: the next frame goes
+    on from it), its strain and halvings reported. Each try starts from the frame's start, the
+    implicit integrator's warm start too. The strain is faked as a function of the step."""
+    base = ("cloth.resolution=[6, 6]", f"simulation.integrator={integrator}")  # dt "auto"
     guarded = Simulation(load_scene("sheet", base + ("simulation.redo_strain=1e-9",)))
     dt = guarded.time_step.dt
     monkeypatch.setattr(simulation_module, "largest_stretch_strain", lambda model, x: strains[
@@ -326,18 +332,22 @@ def test_the_best_try_of_a_redone_frame_is_kept(monkeypatch, strains, kept, trie
     advance, steps = guarded.advance_frame, []
     monkeypatch.setattr(guarded, "advance_frame", lambda *args: (
         steps.append(guarded.time_step.dt), advance(*args))[1])
+    if began is not None:
+        monkeypatch.setattr(guarded, "_measured", {"strain": began})
     frame = guarded.run(1).frames[1]
-    assert len(steps) == tries and steps[-1] == dt / 2 ** kept and guarded.time_step.dt == dt
+    assert steps == [dt / 2 ** k for k in range(tries)] and guarded.time_step.dt == dt
     assert frame.extra["strain_halvings"] == kept and frame.max_strain == strains[kept]
     reference = Simulation(load_scene("sheet", base + (f"simulation.dt={dt / 2 ** kept!r}",)))
     reference.run(1)
     np.testing.assert_array_equal(guarded.positions(), reference.positions())
+    for name, value in guarded.integrator.memory().items():  # the kept try's, not the last's
+        np.testing.assert_array_equal(value, reference.integrator.memory()[name])
 
 
 def test_a_try_that_tunnels_less_is_kept_before_one_that_stretches_less(monkeypatch):
     """Crossing pairs come first: a frame that crosses at dt and not at smaller steps (counted
-    as faked), stretched least at dt and more at each smaller step, keeps its try at dt/2,
-    simulated again with the effects told of its one tunnelling halving."""
+    as faked), stretched least at dt and more at each smaller step, keeps its try at dt/2 (put
+    back), the effects told of the run's step after it."""
     base = ("cloth.resolution=[6, 6]", "simulation.integrator=symplectic")  # dt "auto"
     guarded = Simulation(load_scene("sheet", base + ("simulation.redo_strain=1e-9",)))
     dt = guarded.time_step.dt
@@ -346,12 +356,11 @@ def test_a_try_that_tunnels_less_is_kept_before_one_that_stretches_less(monkeypa
     monkeypatch.setattr(guarded.intersections, "count", lambda positions: int(
         not np.array_equal(positions, start) and guarded.time_step.dt == dt))
     monkeypatch.setattr(simulation_module, "largest_stretch_strain", lambda model, x: {
-        dt: 0.1, dt / 2: 0.5, dt / 4: 0.9, dt / 8: 1.0}[guarded.time_step.dt])
+        dt: 0.1, dt / 2: 0.5, dt / 4: 0.9, dt / 8: 0.95}[guarded.time_step.dt])
     redone = []
     monkeypatch.setattr(guarded.effects[0], "follow_redo", redone.append)
     frame = guarded.run(1).frames[1]
-    assert redone == [1, 1, 1, 1, 0]  # dt/2, dt/4, dt/8 (within REDO_GAIN: the last), dt/2
-    # again, the run's step
+    assert redone == [1, 1, 1, 0]  # dt/2, dt/4, dt/8 (within REDO_GAIN: the last), the run's
     assert frame.extra["tunnelling_halvings"] == 1 and frame.extra["strain_halvings"] == 1
     assert frame.self_intersections == 0 and frame.max_strain == 0.5
     reference = Simulation(load_scene("sheet", base + (f"simulation.dt={dt / 2!r}",)))

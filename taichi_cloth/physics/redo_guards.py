@@ -1,6 +1,6 @@
 """The redo guards: a frame redone from its start at half the step while it tunnelled, stretched
 or sank in past the scene's limits, and the best of its tries kept (docs/physics.md,
-"Tunnelling" and "Stability")."""
+"Self-collision": "Tunnelling", the strain and penetration guards, "The best try kept")."""
 
 import math
 
@@ -18,7 +18,7 @@ class RedoGuards:
     """``Simulation``'s frames refined by its guards (mixed in: it reads the simulation's
     ``guards_crossings``, ``redo_limits``, ``_crossings``, ``effects``, ``intersections`` and
     ``time_step``, and calls its ``advance_frame``, ``_end_state``, ``_roll_back``,
-    ``set_time_step``, ``_follow_redo`` and ``surface_depth``)."""
+    ``set_time_step``, ``_follow_redo``, ``surface_depth``, ``snapshot`` and ``restore``)."""
 
     def _advance_refining(self, frame: int, record: RunRecord, still: bool):
         """``frame`` from the backed-up state, refined: (problem or None, x, v, crossing pairs
@@ -32,64 +32,60 @@ class RedoGuards:
           too weak for the closing speed tunnels at any step);
         - with a larger max strain than ``simulation.redo_strain``, or a surface sample deeper
           inside a collider than ``simulation.redo_penetration`` (each when set), unless a
-          halving left it within ``REDO_GAIN`` of the try before, either way (then it is the
-          garment's, not the step's): down to dt/8 (``REDO_HALVINGS``), or as many halvings
+          halving left it within ``REDO_GAIN`` of the try before, either way, in a frame that
+          began past the limit (then it is the garment's, not the step's: ``_began_past``):
+          down to dt/8 (``REDO_HALVINGS``), or as many halvings
           past the tunnelling guard's in a frame that tunnelled (at most dt/64: a fold that
           crossing-free smaller steps pushed apart hard, stretching the cloth 15 %, is redone
           smaller still).
-        The try kept is the best (``_shortfall``; of equals the first, the longest step): the
-        last, unless a smaller step made the frame worse (a fold that met at another moment,
-        harder), when the best is simulated again (the same bits: a run is reproducible). The
-        step goes back to the run's afterwards: a frame that a smaller step cannot mend costs
-        that frame, not the run."""
+        The try kept is the best (``_shortfall``): the last, unless an earlier one was better
+        (a smaller step made the frame worse: a fold that met at another moment, harder), whose
+        end, kept as a snapshot with what the integrator and the effects carry, is put back
+        exactly (``Simulation.restore``). The step goes back to the run's afterwards: a frame
+        that a smaller step cannot mend costs that frame, not the run."""
         dt, substeps = self.time_step.dt, self.time_step.substeps_per_frame
         depth = None
         refines = self.guards_crossings or bool(self.redo_limits)
         before = dict.fromkeys(self.redo_limits, math.inf)
         halved = dict.fromkeys(["tunnelling", *self.redo_limits], 0)
-        tries = []  # (shortfall, halvings, each guard's halvings) of each try measured
+        kept = halved  # each guard's halvings at the try kept
+        best = None  # (shortfall, snapshot, what was measured) of the best try before the last
         for halvings in range(max(TUNNELLING_HALVINGS, REDO_HALVINGS) + 1 if refines else 1):
             if halvings:
-                self._step_for_try(dt, substeps, halvings, halved["tunnelling"])
+                self._roll_back()
+                self.set_time_step(dt / 2 ** halvings, substeps * 2 ** halvings)
+                self._follow_redo(halved["tunnelling"])
             problem, x, v, strain, crossings = self._try_frame(frame, record, still)
             if problem is not None or not refines:
                 break
-            measured = {"strain": strain}
-            if "penetration" in self.redo_limits:
-                depth = self.surface_depth(x)
-                measured["penetration"] = float(depth.max(initial=0.0))
-            tries.append((self._shortfall(crossings, measured), halvings, dict(halved)))
+            measured, depth = self._guard_measures(x, strain)
+            shortfall = self._shortfall(crossings, measured)
+            kept = dict(halved)
             tunnelled = self.guards_crossings and crossings > self._crossings \
                 and halvings < TUNNELLING_HALVINGS
             deepest = min(halved["tunnelling"] + REDO_HALVINGS, TUNNELLING_HALVINGS)
             exceeded = [name for name, limit in self.redo_limits.items()
                         if limit < measured[name] and halvings < deepest
-                        and not REDO_GAIN * before[name] <= measured[name]
-                        <= before[name] / REDO_GAIN]
+                        and not (self._began_past(name, limit) and REDO_GAIN * before[name]
+                                 <= measured[name] <= before[name] / REDO_GAIN)]
             before = {name: measured[name] for name in self.redo_limits}
             if not (tunnelled or exceeded):
                 break
+            if best is None or shortfall < best[0]:  # (a later try may do worse)
+                best = (shortfall, self.snapshot(effects=True),
+                        (x, v, strain, crossings, depth, kept, measured))
             halved["tunnelling"] += tunnelled
             for name in exceeded:
                 halved[name] += 1
-        if problem is None and tries and min(tries)[0] < tries[-1][0]:
-            _, halvings, halved = min(tries)
-            self._step_for_try(dt, substeps, halvings, halved["tunnelling"])
-            problem, x, v, strain, crossings = self._try_frame(frame, record, still)
-            if problem is None and "penetration" in self.redo_limits:
-                depth = self.surface_depth(x)
+        if problem is None and best is not None and best[0] < shortfall:
+            self.restore(best[1])
+            x, v, strain, crossings, depth, kept, measured = best[2]
+        if problem is None and refines:
+            self._measured = measured
         self.set_time_step(dt, substeps)
         if halved["tunnelling"]:
             self._follow_redo(0)
-        return problem, x, v, crossings, halved, strain, depth
-
-    def _step_for_try(self, dt: float, substeps: int, halvings: int, tunnelling: int) -> None:
-        """The backed-up state put back for a try at the run's step ``dt`` [s] (``substeps``
-        a frame) over 2^``halvings``, the effects told of the ``tunnelling`` halvings among
-        them (``_follow_redo``)."""
-        self._roll_back()
-        self.set_time_step(dt / 2 ** halvings, substeps * 2 ** halvings)
-        self._follow_redo(tunnelling)
+        return problem, x, v, crossings, kept, strain, depth
 
     def _try_frame(self, frame: int, record: RunRecord, still: bool):
         """One try at ``frame`` at the step set: (problem or None, x [m], v [m/s], x's largest
@@ -111,6 +107,30 @@ class RedoGuards:
                 if problem is None:  # (else unusable: ``guarded_frame`` retries)
                     crossings = self.intersections.count(x)
         return problem, x, v, strain, crossings
+
+    def _guard_measures(self, x, strain: float) -> tuple[dict, object]:
+        """(the redo guards' measures of positions x [m] with largest stretch strain
+        ``strain``: the strain and, with the penetration guard, the surface's deepest point in
+        a collider [m]; the surface samples' depths, or None without that guard)."""
+        measured, depth = {"strain": strain}, None
+        if "penetration" in self.redo_limits:
+            depth = self.surface_depth(x)
+            measured["penetration"] = float(depth.max(initial=0.0))
+        return measured, depth
+
+    def _measure_start(self) -> None:
+        """The guards' measures of the state the next frame starts from, when not known (the
+        first frame, a restored snapshot): what ``_began_past`` reads."""
+        if self.redo_limits and self._measured is None:
+            x, _, strain, _ = self._end_state()
+            self._measured = self._guard_measures(x, strain)[0]
+
+    def _began_past(self, name: str, limit: float) -> bool:
+        """Whether the frame began past the guard's ``limit``: a try then no better than the one
+        before, nor worse, shows a strain or depth the garment holds (a tight waist), which no
+        smaller step mends; one that began within it and ends past it met something within the
+        frame, which a smaller step may meet more gently."""
+        return self._measured[name] > limit
 
     def _shortfall(self, crossings: int | None, measured: dict) -> tuple[int, float]:
         """How far a try falls short of its guards, the smaller the better: (its crossing pairs

@@ -71,6 +71,8 @@ class Simulation(RedoGuards):
             ("strain", scene.simulation.redo_strain),
             ("penetration", scene.simulation.redo_penetration)) if limit > 0}
         self._crossings = None  # crossing pairs in the current state, when counted
+        self._measured = None  # the redo guards' measures of the current state, when taken
+        self._backed_up_integrator = {}  # the integrator's memory at the frame's start
         self.settle_report = None  # what ``settling.settle`` did (a resumed run copies it back)
         self.model = Model(self.garment, scene.simulation.precision,
                            **model_options(scene.effects))
@@ -185,20 +187,25 @@ class Simulation(RedoGuards):
                 effect.restore_memory(memory)
 
     def forget_crossings(self) -> None:
-        """The positions were set from outside: crossings counted afresh, effects' history gone."""
-        self._crossings = None
+        """The positions were set from outside: crossings counted and measures taken afresh,
+        effects' history gone."""
+        self._crossings = self._measured = None
         for effect in self.effects:
             effect.forget_history()
 
     def _back_up(self) -> None:
-        """The state and what the effects carry from step to step, kept for a redone frame."""
+        """The state and what the effects and the integrator carry from step to step (the
+        implicit one's warm start), kept for a redone frame."""
         self.states.copy(self.backup, self.state_in)
+        self._backed_up_integrator = self.integrator.memory()
         for effect in self.effects:
             effect.back_up()
 
     def _roll_back(self) -> None:
-        """The state of the last ``_back_up`` put back, and what the effects carried then."""
+        """The state of the last ``_back_up`` put back, and what the effects and the
+        integrator carried then: each try of a frame starts from the same."""
         self.states.copy(self.state_in, self.backup)
+        self.integrator.restore_memory(self._backed_up_integrator)
         for effect in self.effects:
             effect.roll_back()
 
@@ -253,6 +260,7 @@ class Simulation(RedoGuards):
         self._back_up()
         if self.guards_crossings and self._crossings is None:
             self._crossings = self.intersections.count(self.positions())
+        self._measure_start()
         for attempt in range(self.scene.simulation.max_retries + 1):
             problem, x, v, crossings, halvings, strain, depth = self._advance_refining(
                 frame, record, still)
