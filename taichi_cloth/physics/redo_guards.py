@@ -15,9 +15,9 @@ REDO_GAIN = 0.9  # a halving that leaves the strain (or depth) within this facto
 
 
 class RedoGuards:
-    """``Simulation``'s frames refined by its guards (mixed in: it reads the simulation's
-    ``guards_crossings``, ``redo_limits``, ``_crossings``, ``effects``, ``intersections`` and
-    ``time_step``, and calls its ``advance_frame``, ``_end_state``, ``_roll_back``,
+    """``Simulation``'s frames refined by its guards (mixed in: it keeps the simulation's
+    ``_crossings`` and ``_measured``, reads its ``guards_crossings``, ``redo_limits``,
+    ``effects``, ``intersections`` and ``time_step``, and calls its ``advance_frame``, ``_end_state``, ``_roll_back``,
     ``set_time_step``, ``_follow_redo``, ``surface_depth``, ``snapshot`` and ``restore``)."""
 
     def _advance_refining(self, frame: int, record: RunRecord, still: bool):
@@ -80,8 +80,10 @@ class RedoGuards:
         if problem is None and best is not None and best[0] < shortfall:
             self.restore(best[1])
             x, v, strain, crossings, depth, kept, measured = best[2]
-        if problem is None and refines:
-            self._measured = measured
+        if problem is None:  # what the next frame's tries are compared with
+            self._crossings = crossings
+            if refines:
+                self._measured = measured
         self.set_time_step(dt, substeps)
         if halved["tunnelling"]:
             self._follow_redo(0)
@@ -119,8 +121,12 @@ class RedoGuards:
         return measured, depth
 
     def _measure_start(self) -> None:
-        """The guards' measures of the state the next frame starts from, when not known (the
-        first frame, a restored snapshot): what ``_began_past`` reads."""
+        """What the guards compare a frame's tries with, of the state it starts from, when not
+        known (the first frame, a restored snapshot; else the kept try's, from the frame
+        before): its crossing pairs (``_shortfall``) and the guards' measures
+        (``_began_past``)."""
+        if self.guards_crossings and self._crossings is None:
+            self._crossings = self.intersections.count(self.positions())
         if self.redo_limits and self._measured is None:
             x, _, strain, _ = self._end_state()
             self._measured = self._guard_measures(x, strain)[0]

@@ -258,14 +258,11 @@ class Simulation(RedoGuards):
         Nothing non-finite leaves. With self-collision declared or ``simulation.redo_strain`` or
         ``redo_penetration`` set, each try is itself refined (``_advance_refining``)."""
         self._back_up()
-        if self.guards_crossings and self._crossings is None:
-            self._crossings = self.intersections.count(self.positions())
         self._measure_start()
         for attempt in range(self.scene.simulation.max_retries + 1):
             problem, x, v, crossings, halvings, strain, depth = self._advance_refining(
                 frame, record, still)
             if problem is None:
-                self._crossings = crossings
                 return None if still else self.measure(frame, x, v, crossings, halvings, strain,
                                                        depth)
             if attempt == self.scene.simulation.max_retries:
