@@ -58,12 +58,7 @@ class RungeKutta4(Integrator):
         the next stage state and is copied back over it."""
         evaluated, following = ti.static(self.stage)
         model = self.model
-        h = ti.cast(dt, model.real)
-        for i_p in range(model.particle_count):
-            evaluated.x[i_p] = start.x[i_p]
-            evaluated.v[i_p] = start.v[i_p]
-            self.sum_x[i_p] = ti.Vector.zero(model.real, 3)
-            self.sum_v[i_p] = ti.Vector.zero(model.real, 3)
+        self._copy_state(start, evaluated)
         # per stage: fraction of h to its time, weight of its slope, fraction of h to the next
         # stage state (the tableau of the unrolled form below), each literal in its own
         # precision (a bare one is taken in the default precision first)
@@ -74,31 +69,16 @@ class RungeKutta4(Integrator):
                                    model.real(0.0)])
         for s in range(4):
             stage_time = t + stage_fraction[s] * dt
-            time = ti.cast(stage_time, model.real)
-            w, c = weight[s], next_fraction[s]
             self.forces.prepare(evaluated.x, evaluated.v, stage_time)
             for i_p in range(model.particle_count):
-                slope_x = evaluated.v[i_p]
-                slope_v = model.particle_inv_mass[i_p] * self.forces.particle_force(
-                    evaluated.x, evaluated.v, i_p, time)
-                self.sum_x[i_p] += w * slope_x
-                self.sum_v[i_p] += w * slope_v
-                if s == 3:
-                    if model.particle_inv_mass[i_p] == 0:
-                        out.x[i_p], out.v[i_p] = self.control.pin_target(i_p, t + dt)
-                    else:
-                        out.x[i_p] = start.x[i_p] + h * self.sum_x[i_p]
-                        out.v[i_p] = start.v[i_p] + h * self.sum_v[i_p]
-                elif model.particle_inv_mass[i_p] == 0:
-                    following.x[i_p], following.v[i_p] = self.control.pin_target(
-                        i_p, t + ti.cast(c, ti.f64) * dt)
+                if s < 3:
+                    self._stage_particle(start, evaluated, following, i_p, t, dt, stage_time,
+                                         weight[s], next_fraction[s], s == 0, False)
                 else:
-                    following.x[i_p] = start.x[i_p] + c * h * slope_x
-                    following.v[i_p] = start.v[i_p] + c * h * slope_v
+                    self._stage_particle(start, evaluated, out, i_p, t, dt, stage_time,
+                                         weight[s], next_fraction[s], False, True)
             if s < 3:
-                for i_p in range(model.particle_count):
-                    evaluated.x[i_p] = following.x[i_p]
-                    evaluated.v[i_p] = following.v[i_p]
+                self._copy_state(following, evaluated)
 
     @ti.func
     def _stages_unrolled(self, state_in, state_out, t, dt):
@@ -116,34 +96,39 @@ class RungeKutta4(Integrator):
         """Evaluate at t + stage_fraction·dt. position: 0 first stage (start the sums), 1 middle,
         2 last (write the new state). The fractions and weights are Python floats, baked exactly
         in the model's precision."""
+        stage_time = t + ti.f64(stage_fraction) * dt
+        self.forces.prepare(evaluated.x, evaluated.v, stage_time)
+        for i_p in range(self.model.particle_count):
+            self._stage_particle(start, evaluated, out, i_p, t, dt, stage_time,
+                                 self.model.real(weight), self.model.real(next_fraction),
+                                 position == 0, position == 2)
+
+    @ti.func
+    def _stage_particle(self, start, evaluated, out, i_p, t, dt, stage_time, w, c, first, last):
+        """Particle i_p's part of a stage evaluated at ``stage_time`` [s]: its slope, weighted
+        by w into the running sums (which it starts when ``first``), and its next stage state,
+        c·h from the step's ``start``, into ``out`` (when ``last``, its state at t + h)."""
         model = self.model
         h = ti.cast(dt, model.real)
-        w = model.real(weight)
-        c = model.real(next_fraction)
-        stage_time = t + ti.f64(stage_fraction) * dt
-        time = ti.cast(stage_time, model.real)
-        self.forces.prepare(evaluated.x, evaluated.v, stage_time)
-        for i_p in range(model.particle_count):
-            slope_x = evaluated.v[i_p]
-            slope_v = model.particle_inv_mass[i_p] * self.forces.particle_force(
-                evaluated.x, evaluated.v, i_p, time)
-            if ti.static(position == 0):
-                self.sum_x[i_p] = w * slope_x
-                self.sum_v[i_p] = w * slope_v
+        slope_x = evaluated.v[i_p]
+        slope_v = model.particle_inv_mass[i_p] * self.forces.particle_force(
+            evaluated.x, evaluated.v, i_p, ti.cast(stage_time, model.real))
+        if first:
+            self.sum_x[i_p] = w * slope_x
+            self.sum_v[i_p] = w * slope_v
+        else:
+            self.sum_x[i_p] += w * slope_x
+            self.sum_v[i_p] += w * slope_v
+        if last:
+            if model.particle_inv_mass[i_p] == 0:
+                out.x[i_p], out.v[i_p] = self.control.pin_target(i_p, t + dt)
             else:
-                self.sum_x[i_p] += w * slope_x
-                self.sum_v[i_p] += w * slope_v
-            if ti.static(position == 2):
-                if model.particle_inv_mass[i_p] == 0:
-                    out.x[i_p], out.v[i_p] = self.control.pin_target(i_p, t + dt)
-                else:
-                    out.x[i_p] = start.x[i_p] + h * self.sum_x[i_p]
-                    out.v[i_p] = start.v[i_p] + h * self.sum_v[i_p]
-            elif model.particle_inv_mass[i_p] == 0:
-                # the next stage sees a moving pin where it really is: a straight line from
-                # x_n made the neighbours' anchor O(h²) off and RK4 second order on a dancer
-                out.x[i_p], out.v[i_p] = self.control.pin_target(
-                    i_p, t + ti.f64(next_fraction) * dt)
-            else:
-                out.x[i_p] = start.x[i_p] + c * h * slope_x
-                out.v[i_p] = start.v[i_p] + c * h * slope_v
+                out.x[i_p] = start.x[i_p] + h * self.sum_x[i_p]
+                out.v[i_p] = start.v[i_p] + h * self.sum_v[i_p]
+        elif model.particle_inv_mass[i_p] == 0:
+            # the next stage sees a moving pin where it really is: a straight line from
+            # x_n made the neighbours' anchor O(h²) off and RK4 second order on a dancer
+            out.x[i_p], out.v[i_p] = self.control.pin_target(i_p, t + ti.cast(c, ti.f64) * dt)
+        else:
+            out.x[i_p] = start.x[i_p] + c * h * slope_x
+            out.v[i_p] = start.v[i_p] + c * h * slope_v
