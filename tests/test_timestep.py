@@ -313,13 +313,15 @@ def test_a_frame_that_tunnelled_is_redone_while_it_does_down_to_a_64th_of_the_st
     # began stretched (faked as at dt: the garment's): no dt/4
     ((0.5, 0.52, 0.1, 0.1), None, 0, 2),  # the same, a little worse: dt's
     ((0.5, 0.47, 0.2, 0.1), 0.0, 3, 4),  # the same in a frame that began unstretched: on
+    ((0.5, 0.47, 0.2, 0.1), 0.3, 3, 4),  # began stretched, but far less (0.47 > 0.3 / 0.9): on
 ])
 @pytest.mark.parametrize("integrator", ["symplectic", "implicit"])
 def test_the_best_try_of_a_redone_frame_is_kept(monkeypatch, strains, began, kept, tries,
                                                 integrator):
-    """A halving that leaves the strain within ``REDO_GAIN`` of the try before, either way, is
-    the last in a frame that began past ``redo_strain`` (``began``: the strain at its start,
-    measured by the run where None); one that makes it worse past that goes on. The frame kept is the try with the
+    """A halving that leaves the strain within ``REDO_GAIN`` of the try before, either way, and
+    of the frame's start, is the last in a frame that began past ``redo_strain`` (``began``:
+    the strain at its start, measured by the run where None); one that makes it worse past
+    that goes on. The frame kept is the try with the
     least strain: when that is not the last, its end is put back, and the kept state is, bit
     for bit, that frame at that step (with what the integrator carries: the next frame goes
     on from it), its strain and halvings reported. Each try starts from the frame's start, the
@@ -356,11 +358,13 @@ def test_a_try_that_tunnels_less_is_kept_before_one_that_stretches_less(monkeypa
     monkeypatch.setattr(guarded.intersections, "count", lambda positions: int(
         not np.array_equal(positions, start) and guarded.time_step.dt == dt))
     monkeypatch.setattr(simulation_module, "largest_stretch_strain", lambda model, x: {
-        dt: 0.1, dt / 2: 0.5, dt / 4: 0.9, dt / 8: 0.95}[guarded.time_step.dt])
+        dt: 0.1, dt / 2: 0.5, dt / 4: 0.9, dt / 8: 0.95, dt / 16: 0.97}[guarded.time_step.dt])
     redone = []
     monkeypatch.setattr(guarded.effects[0], "follow_redo", redone.append)
     frame = guarded.run(1).frames[1]
-    assert redone == [1, 1, 1, 0]  # dt/2, dt/4, dt/8 (within REDO_GAIN: the last), the run's
+    # dt/2 ... dt/16 (the strain guard's three halvings past the tunnelling one; the frame began
+    # at 0.1, so 0.95 within REDO_GAIN of dt/4's 0.9 is not the garment's), then the run's
+    assert redone == [1, 1, 1, 1, 0]
     assert frame.extra["tunnelling_halvings"] == 1 and frame.extra["strain_halvings"] == 1
     assert frame.self_intersections == 0 and frame.max_strain == 0.5
     reference = Simulation(load_scene("sheet", base + (f"simulation.dt={dt / 2!r}",)))
