@@ -319,12 +319,12 @@ def test_a_frame_that_tunnelled_is_redone_while_it_does_down_to_a_64th_of_the_st
 def test_the_best_try_of_a_redone_frame_is_kept(monkeypatch, strains, began, kept, tries,
                                                 integrator):
     """A halving that leaves the strain within ``REDO_GAIN`` of the try before, either way, and
-    of the frame's start, is the last in a frame that began past ``redo_strain`` (``began``:
-    the strain at its start, measured by the run where None); one that makes it worse past
-    that goes on. The frame kept is the try with the
-    least strain: when that is not the last, its end is put back, and the kept state is, bit
-    for bit, that frame at that step (with what the integrator carries: the next frame goes
-    on from it), its strain and halvings reported. Each try starts from the frame's start, the
+    no further than 1/``REDO_GAIN`` of the frame's start, is the last in a frame that began past
+    ``redo_strain`` (``began``: the strain at its start, measured by the run where None); one
+    that makes it worse past that goes on. The frame kept is the try with the least strain:
+    when that is not the last, its end is put back, and the kept state is, bit for bit, that
+    frame at that step (with what the integrator carries: the next frame goes on from it), its
+    strain and halvings reported. Each try starts from the frame's start, the
     implicit integrator's warm start too. The strain is faked as a function of the step."""
     base = ("cloth.resolution=[6, 6]", f"simulation.integrator={integrator}")  # dt "auto"
     guarded = Simulation(load_scene("sheet", base + ("simulation.redo_strain=1e-9",)))

@@ -17,8 +17,9 @@ REDO_GAIN = 0.9  # a halving that leaves the strain (or depth) within this facto
 class RedoGuards:
     """``Simulation``'s frames refined by its guards (mixed in: it keeps the simulation's
     ``_crossings`` and ``_measured``, reads its ``guards_crossings``, ``redo_limits``,
-    ``effects``, ``intersections`` and ``time_step``, and calls its ``advance_frame``, ``_end_state``, ``_roll_back``,
-    ``set_time_step``, ``_follow_redo``, ``surface_depth``, ``snapshot`` and ``restore``)."""
+    ``effects``, ``intersections`` and ``time_step``, and calls its ``advance_frame``,
+    ``_end_state``, ``_roll_back``, ``set_time_step``, ``_follow_redo``, ``surface_depth``,
+    ``snapshot`` and ``restore``)."""
 
     def _advance_refining(self, frame: int, record: RunRecord, still: bool):
         """``frame`` from the backed-up state, refined: (problem or None, x, v, crossing pairs
@@ -34,9 +35,8 @@ class RedoGuards:
           inside a collider than ``simulation.redo_penetration`` (each when set), unless it is
           the garment's, not the step's (``_held_by_garment``: a frame that began past the
           limit, a halving that left it within ``REDO_GAIN`` of the try before, either way,
-          and of the frame's start):
-          down to dt/8 (``REDO_HALVINGS``), or as many halvings
-          past the tunnelling guard's in a frame that tunnelled (at most dt/64: a fold that
+          and no further than 1/``REDO_GAIN`` of the frame's start): down to dt/8
+          (``REDO_HALVINGS``), or as many halvings past the tunnelling guard's in a frame that tunnelled (at most dt/64: a fold that
           crossing-free smaller steps pushed apart hard, stretching the cloth 15 %, is redone
           smaller still).
         The try kept is the best (``_shortfall``): the last, unless an earlier one was better

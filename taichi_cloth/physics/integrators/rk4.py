@@ -8,9 +8,10 @@ With a(x, v, t) = M⁻¹ F(x, v, t) and step h:
     k4 = (v_n + h·k3v,    a(x_n + h·k3x,   v_n + h·k3v,   t + h))
     (x, v)_{n+1} = (x, v)_n + h/6·(k1 + 2k2 + 2k3 + k4)
 
-Every stage evaluates *all* forces, dampers included, at the stage's own positions and velocities.
-The seed's listing evaluates the damping −c·v(t) with the step's starting velocity in every stage,
-which drops the method to first order once damping is on; the order test with damping (docs/physics.md) catches that.
+Every stage evaluates *all* forces, dampers included, at the stage's own positions and
+velocities. The seed's listing evaluates the damping −c·v(t) with the step's starting velocity
+in every stage, which drops the method to first order once damping is on; the order test with
+damping (docs/physics.md) catches that.
 
 Each stage is ``Forces.prepare`` and one loop over the particles: it gathers forces at the
 previous stage state, adds the stage's weighted slope to running sums, and writes the next stage
@@ -20,9 +21,10 @@ forces). Pinned particles take their pin target at t + h.
 On one thread (``serial``, the CPU's small cloth) the four stages are one run-time loop over a
 table of their fractions and weights, always evaluating the same buffer (the state is copied in,
 and each next stage state copied over it): ``Forces.prepare`` is inlined once, not four times,
-which matters where it is large (self-collision's list and pairs compiled in ~110 s four times
-over, docs/performance.md). A parallel launch unrolls the four stages instead: a run-time loop
-around them would be its outermost loop, and Taichi runs only that one in parallel.
+which matters where it is large (self-collision's list and pairs compiled for 162 s four times
+over, docs/performance.md; the gather, inlined in the loop's two branches, is small). A parallel
+launch unrolls the four stages instead: a run-time loop around them would be its outermost
+loop, and Taichi runs only that one in parallel.
 """
 
 import taichi as ti
