@@ -474,12 +474,50 @@ def test_a_redone_frame_gets_back_the_records_of_its_start():
     assert out.to_numpy()[3, 1] == pytest.approx(MASS[3] * K_HAT * 0.013, rel=1e-9)
 
 
-def test_thickness_of_half_an_edge_or_more_is_one_line_exit_2(capsys):
+def test_thickness_of_half_the_median_edge_or_more_is_one_line_exit_2(capsys):
     assert main(["simulate", "fold", "--frames", "1", "--set",
                  "effects.self_collision.thickness=0.5", "--out", "/nonexistent/x"]) == 2
     message = capsys.readouterr().err.strip()
     assert "effects.self_collision.thickness" in message and "\n" not in message
     assert "below 0.02 m" in message  # the bound itself: half of fold's 4 cm edges
+
+
+@pytest.mark.parametrize("distance", [0.004, 0.0015])
+def test_the_pairs_left_out_are_every_pair_that_close_in_the_starting_shape(distance):
+    """``rest_neighbours`` on a disc whose inner rings have edges of 1–2 mm (a drape tester's
+    specimen round a small hole) against a brute-force search over every vertex and triangle it
+    is not a corner of and every two edges that share no particle; and on two such discs laid 1
+    mm apart, one over the other: layers, not neighbours, so only each disc's own pairs."""
+    from taichi_cloth.cloth.garment import build_garment
+    from taichi_cloth.config.materials import PRESETS
+    from taichi_cloth.config.tables import ClothConfig
+    from taichi_cloth.effects.rest_neighbours import rest_neighbours
+    cloth = ClothConfig(shape="disc", resolution=(24, 6), waist_radius=0.005, hem_radius=0.05,
+                        height=0.5, pin="none")
+    garment = build_garment(cloth, PRESETS["cotton"])
+    x, triangles, edges = garment.positions, garment.triangles, garment.edges
+    vertex, triangle = (index.ravel() for index in np.indices((len(x), len(triangles))))
+    apart = (triangles[triangle] != vertex[:, None]).all(axis=1)
+    vertex, triangle = vertex[apart], triangle[apart]
+    near = closest_distance_point_triangle(x[vertex], *(x[triangles[triangle][:, k]]
+                                                        for k in range(3))) < distance
+    first, second = np.triu_indices(len(edges), 1)
+    apart = (edges[first][:, :, None] != edges[second][:, None, :]).all(axis=(1, 2))
+    first, second = first[apart], second[apart]
+    close = closest_distance_segments(*(x[edges[first][:, k]] for k in range(2)),
+                                      *(x[edges[second][:, k]] for k in range(2))) < distance
+    vertex_triangle, edge_edge = rest_neighbours(x, triangles, edges, distance)
+    assert len(vertex_triangle) > 20 and len(edge_edge) > 20
+    assert {tuple(p) for p in vertex_triangle} == set(zip(vertex[near], triangle[near]))
+    assert {tuple(p) for p in edge_edge} == set(zip(first[close], second[close]))
+    assert (np.diff(vertex_triangle[:, 0]) >= 0).all() and (np.diff(edge_edge[:, 0]) >= 0).all()
+    n, t, e = len(x), len(triangles), len(edges)
+    layered = rest_neighbours(np.concatenate([x, x + [0.0, 0.001, 0.0]]),
+                              np.concatenate([triangles, triangles + n]),
+                              np.concatenate([edges, edges + n]), distance)
+    np.testing.assert_array_equal(layered[0], np.concatenate([vertex_triangle,
+                                                              vertex_triangle + [n, t]]))
+    np.testing.assert_array_equal(layered[1], np.concatenate([edge_edge, edge_edge + e]))
 
 
 FOLD = ("cloth.resolution=[12, 12]",)  # `fold` small: its halves meet at frame 13
@@ -659,11 +697,14 @@ def closest_distance_segments(a, b, c, d):
 
 
 @functools.cache
-def folded_sheet_physics(columns: int = 8, side: float = 0.14, rewound: bool = False):
+def folded_sheet_physics(columns: int = 8, side: float = 0.14, rewound: bool = False,
+                         squeezed: bool = False):
     """A columns × columns sheet of ``side`` [m] (by default 2 cm spacing) with self-collision at
     its defaults (thickness 4 mm, reach 8 mm), built once each: (model, forces, state, output
     field, effect). ``rewound``: the triangles of the half that ``folded_positions`` turns over
-    wound the other way (a garment file need not keep its winding)."""
+    wound the other way (a garment file need not keep its winding). ``squeezed``: its third
+    column of particles moved to 1.5 mm from the second (edges far shorter than the thickness,
+    as a garment file's dart may have)."""
     from dataclasses import replace
 
     from taichi_cloth.cloth.garment import build_garment
@@ -678,6 +719,11 @@ def folded_sheet_physics(columns: int = 8, side: float = 0.14, rewound: bool = F
         triangles = garment.triangles.copy()
         triangles[turned] = triangles[turned][:, ::-1]
         garment = replace(garment, triangles=triangles)
+    if squeezed:
+        x = garment.positions.copy()
+        column_x = np.unique(x[:, 0])
+        x[x[:, 0] == column_x[2], 0] = column_x[1] + 0.0015
+        garment = replace(garment, positions=x)
     model = Model(garment, "f64")
     physics = assemble(model, [(SelfCollision, SelfCollisionSettings())])
     effect = physics.effects[0]
@@ -766,19 +812,21 @@ def listed_pairs(pairs) -> set:
     return {(int(kind), tuple(int(i) for i in ids)) for kind, ids in zip(kinds, particles)}
 
 
-@pytest.mark.parametrize("columns, side, gap, jitter", [
-    (8, 0.14, 0.006, 0.002),  # 2 cm spacing, layers 6 mm apart
-    (12, 0.0915, 0.004, 0.001),  # 8.3 mm spacing: the thickness bound's largest reach, 4 mm apart
+@pytest.mark.parametrize("columns, side, gap, jitter, squeezed", [
+    (8, 0.14, 0.006, 0.002, False),  # 2 cm spacing, layers 6 mm apart
+    (12, 0.0915, 0.004, 0.001, False),  # 8.3 mm spacing: the bound's largest reach, 4 mm apart
+    (8, 0.14, 0.006, 0.001, True),  # a column of edges 1.5 mm long, within the thickness
 ])
 def test_the_candidate_list_holds_exactly_the_layered_pairs_within_the_reach(columns, side, gap,
-                                                                           jitter):
+                                                                           jitter, squeezed):
     """Against a brute-force NumPy search over every vertex and triangle it is not a corner of
     and every two edges that share no particle, on a folded sheet, less the pairs whose patches
-    hold no layers (``flat_patch_pairs``): with pairs at every distance around the reach, and as
-    densely as the thickness bound allows (every walk's and the list's capacity holds). The
-    fold's layers are all listed; in the dense sheet, the flat layers' own neighbours within the
-    reach are not."""
-    model, forces, state, out, effect = folded_sheet_physics(columns, side)
+    hold no layers (``flat_patch_pairs``) and the pairs within the thickness of each other in the
+    sheet's starting shape (around the squeezed column, whose jittered triangles are not flat):
+    with pairs at every distance around the reach, and as densely as the thickness bound allows
+    (every walk's and the list's capacity holds). The fold's layers are all listed; in the dense
+    sheet, the flat layers' own neighbours within the reach are not."""
+    model, forces, state, out, effect = folded_sheet_physics(columns, side, squeezed=squeezed)
     x = folded_positions(model, gap, jitter)
     state.x.from_numpy(x)
     state.v.fill(0.0)
@@ -808,17 +856,26 @@ def test_the_candidate_list_holds_exactly_the_layered_pairs_within_the_reach(col
     first, second = first[apart], second[apart]  # every two edges that share no particle
     edge_distance = closest_distance_segments(*(x[edges[first][:, k]] for k in range(2)),
                                               *(x[edges[second][:, k]] for k in range(2)))
-    borderline = np.sum(np.abs(vertex_distance - reach) < 1e-9) + \
-        np.sum(np.abs(edge_distance - reach) < 1e-9)
+    rest = model.garment.positions  # pairs this close at the start: left out for good
+    vertex_at_rest = closest_distance_point_triangle(rest[vertex], *(rest[corners[:, k]]
+                                                                     for k in range(3)))
+    edge_at_rest = closest_distance_segments(*(rest[edges[first][:, k]] for k in range(2)),
+                                             *(rest[edges[second][:, k]] for k in range(2)))
+    borderline = sum(np.sum(np.abs(distance - limit) < 1e-9) for distance, limit in [
+        (vertex_distance, reach), (edge_distance, reach), (vertex_at_rest, effect.thickness),
+        (edge_at_rest, effect.thickness)])
+    at_rest = np.sum(vertex_at_rest < effect.thickness) + np.sum(edge_at_rest < effect.thickness)
+    assert (at_rest > 0) == squeezed
     hops = mesh_hops(edges, len(x))
     expected, left_out = set(), []
-    near = vertex_distance <= reach
+    near = (vertex_distance <= reach) & (vertex_at_rest >= effect.thickness)
     for p, t, corner_ids in zip(vertex[near], triangle[near], corners[near]):
         if culled(home[p], triangle_patch[t]):
             left_out.append(hops[p, corner_ids].min())
         else:
             expected.add((0, (int(p), *(int(c) for c in corner_ids))))
-    for e, f in zip(first[edge_distance <= reach], second[edge_distance <= reach]):
+    near = (edge_distance <= reach) & (edge_at_rest >= effect.thickness)
+    for e, f in zip(first[near], second[near]):
         ids = (*(int(i) for i in edges[e]), *(int(i) for i in edges[f]))
         if culled(edge_patch[ids[:2]], edge_patch[ids[2:]]):
             left_out.append(hops[np.ix_(ids[:2], ids[2:])].min())

@@ -14,9 +14,11 @@ The build: each triangle's box grown by the reach and each edge's by half of it,
 cloth's patches with their partners (``effects/mesh_patches.py``: the pairs of patches that may
 hold layers of cloth, flat neighbourhoods left out); each particle walks the triangles of its
 home patch's partners (the vertex–triangle pairs: a vertex and a triangle it is not a corner of,
-whose box holds it; a partner whose box is too far from the particle is skipped whole), and
+whose box holds it, and that were not within the thickness in the starting shape,
+``rest_neighbours.py``; a partner whose box is too far from the particle is skipped whole), and
 each pair of partners once (from the higher) their home edges against each other (the edge–edge
-pairs of edges sharing no particle, whose boxes overlap, into the row of the lower edge; each
+pairs of edges sharing no particle, whose boxes overlap, and not within the thickness at the
+start, into the row of the lower edge; each
 patch's edges are first tested against the region both patches' boxes share, and only those
 that meet it against each other); then the exact distance. All on one thread: each particle's
 and edge's finds in a row of its own (up to ``FOUND_PER_ITEM``), then listed in particle order,
@@ -33,11 +35,13 @@ import taichi as ti
 from taichi_cloth.effects.pair_records import PairRecords
 from taichi_cloth.effects.proximity import EDGE_EDGE, VERTEX_TRIANGLE
 from taichi_cloth.effects.mesh_patches import MeshPatches
+from taichi_cloth.effects.rest_neighbours import rest_neighbours
 
-# Capacities: with the reach near its largest (thickness just below half the shortest edge), a
-# sheet folded onto itself, the layers a thickness apart and jittered by a quarter of it, finds
-# up to 29 pairs in one walk and 11 per particle and edge in all (tests/test_self_collision.py);
-# a third layer adds about half as many. More count as overflow, which the run reports.
+# Capacities: with the reach near its largest for a regular mesh (thickness just below half its
+# edge), a sheet folded onto itself, the layers a thickness apart and jittered by a quarter of
+# it, finds up to 29 pairs in one walk and 11 per particle and edge in all
+# (tests/test_self_collision.py); a third layer adds about half as many. More count as overflow,
+# which the run reports.
 PAIRS_PER_ITEM = 24  # the list's capacity per particle and edge
 FOUND_PER_ITEM = 48  # the pairs one particle's or edge's walk may find
 
@@ -84,12 +88,24 @@ class CandidatePairs(PairRecords):
         self.entry_start = ti.field(ti.i32, particles + 1)
         self.entry_fill = ti.field(ti.i32, particles)
         self.entry = ti.field(ti.i32, 4 * self.capacity)
-        self._host = (garment.triangles, garment.edges)
+        # the pairs left out for good (``rest_neighbours``): per row (a particle's, then an
+        # edge's, as ``found``) the triangles or edges of higher index, CSR
+        vertex_triangle, edge_edge = rest_neighbours(garment.positions, garment.triangles,
+                                                     garment.edges, thickness)
+        rows = np.concatenate([vertex_triangle[:, 0], particles + edge_edge[:, 0]])
+        others = np.concatenate([vertex_triangle[:, 1], edge_edge[:, 1]])
+        start = np.cumsum(np.bincount(rows, minlength=particles + self.edge_count))
+        self.rest_start = ti.field(ti.i32, particles + self.edge_count + 1)
+        self.rest_other = ti.field(ti.i32, max(len(others), 1))
+        self._host = (garment.triangles, garment.edges, np.concatenate([[0], start]),
+                      others if len(others) else np.array([-1]))
 
     def upload(self) -> None:
-        triangles, edges = self._host
+        triangles, edges, rest_start, rest_other = self._host
         self.model.uploads.add([(self.corners, triangles.astype(np.int32)),
                                 (self.ends, edges.astype(np.int32)),
+                                (self.rest_start, rest_start.astype(np.int32)),
+                                (self.rest_other, rest_other.astype(np.int32)),
                                 (self.rotation, np.eye(3)), (self.rebuild_asked, np.array(1))])
         self.patches.upload()
 
@@ -283,8 +299,9 @@ class CandidatePairs(PairRecords):
                     if (self.triangle_lower[t] <= x[i_p]).all() \
                             and (x[i_p] <= self.triangle_upper[t]).all() \
                             and (corners != i_p).all():
-                        self._consider(x, i_p, t, ti.Vector([i_p, corners[0], corners[1],
-                                                             corners[2]]), VERTEX_TRIANGLE)
+                        if self._left_out(i_p, t) == 0:
+                            self._consider(x, i_p, t, ti.Vector([i_p, corners[0], corners[1],
+                                                                 corners[2]]), VERTEX_TRIANGLE)
         self._keep_crossed(i_p)
 
     @ti.func
@@ -335,8 +352,18 @@ class CandidatePairs(PairRecords):
                         e = patches.edge[first + 31 - ti.math.clz(lowest)]
                         low_edge, high_edge = ti.min(e, other), ti.max(e, other)
                         ends, high_ends = self.ends[low_edge], self.ends[high_edge]
-                        self._consider(x, particles + low_edge, high_edge, ti.Vector(
-                            [ends[0], ends[1], high_ends[0], high_ends[1]]), EDGE_EDGE)
+                        if self._left_out(particles + low_edge, high_edge) == 0:
+                            self._consider(x, particles + low_edge, high_edge, ti.Vector(
+                                [ends[0], ends[1], high_ends[0], high_ends[1]]), EDGE_EDGE)
+
+    @ti.func
+    def _left_out(self, row, other):
+        """Whether the pair of row ``row`` (a particle, or particles + an edge) with triangle or
+        edge ``other`` was within the thickness in the starting shape (``rest_neighbours``)."""
+        left_out = 0
+        for k in range(self.rest_start[row], self.rest_start[row + 1]):
+            left_out |= int(self.rest_other[k] == other)
+        return left_out
 
     @ti.func
     def _list_entries(self):

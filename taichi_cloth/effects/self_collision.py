@@ -100,11 +100,11 @@ class SelfCollision(Effect):
         self.blocks = context.needs_jacobian  # the implicit solver's blocks, else none
         real = model.real
         rest = np.linalg.norm(np.diff(garment.positions[garment.edges], axis=1), axis=2)
-        shortest = float(rest.min(initial=np.inf))
-        if settings.thickness >= 0.5 * shortest:
+        median = float(np.median(rest)) if rest.size else np.inf  # (closer pairs: left out)
+        if settings.thickness >= 0.5 * median:
             raise InputError(f"effects.self_collision.thickness: {settings.thickness:g} m must be "
-                             f"below {0.5 * shortest:g} m, half the cloth's shortest edge "
-                             f"({shortest:g} m)")
+                             f"below {0.5 * median:g} m, half the cloth's median edge "
+                             f"({median:g} m)")
         self.thickness, self.stiffness = settings.thickness, settings.stiffness  # m, 1/s²
         self.stiffness_given = self.stiffness is not None
         if not self.stiffness_given:
