@@ -520,6 +520,33 @@ def test_the_pairs_left_out_are_every_pair_that_close_in_the_starting_shape(dist
     np.testing.assert_array_equal(layered[1], np.concatenate([edge_edge, edge_edge + e]))
 
 
+@pytest.mark.parametrize("columns", [11, 12, 13, 14, 15])
+@pytest.mark.parametrize("distance", [0.0035, 0.004])
+def test_the_pairs_left_out_do_not_depend_on_where_the_grid_cells_fall(columns, distance):
+    """``rest_neighbours`` on a sheet of 1 cm cells, 8 rows, its fifth column onwards moved 8 mm
+    closer (edges of 2 mm), at sizes and distances that put the grown boxes' extent either side
+    of a whole number of cells (a grid keyed apart for particles and triangles once matched none
+    at 12 and 14 columns and 4 mm, 15 and 3.5 mm), against the brute-force search."""
+    from taichi_cloth.cloth.garment import build_garment
+    from taichi_cloth.config.materials import PRESETS
+    from taichi_cloth.config.tables import ClothConfig
+    from taichi_cloth.effects.rest_neighbours import rest_neighbours
+    cloth = ClothConfig(shape="sheet", resolution=(columns, 8), size=((columns - 1) * 0.01, 0.07),
+                        height=1.0, orientation="horizontal", pin="none")
+    garment = build_garment(cloth, PRESETS["cotton"])
+    x, triangles = garment.positions.copy(), garment.triangles
+    column_x = np.unique(x[:, 0])
+    x[x[:, 0] >= column_x[4], 0] -= 0.008
+    vertex, triangle = (index.ravel() for index in np.indices((len(x), len(triangles))))
+    apart = (triangles[triangle] != vertex[:, None]).all(axis=1)
+    vertex, triangle = vertex[apart], triangle[apart]
+    near = closest_distance_point_triangle(x[vertex], *(x[triangles[triangle][:, k]]
+                                                        for k in range(3))) < distance
+    found = rest_neighbours(x, triangles, garment.edges, distance)[0]
+    assert len(found) > 20
+    assert {tuple(p) for p in found} == set(zip(vertex[near], triangle[near]))
+
+
 FOLD = ("cloth.resolution=[12, 12]",)  # `fold` small: its halves meet at frame 13
 FOLD_FRAMES, FOLD_KEPT = 16, 13
 
@@ -822,7 +849,7 @@ def test_the_candidate_list_holds_exactly_the_layered_pairs_within_the_reach(col
     """Against a brute-force NumPy search over every vertex and triangle it is not a corner of
     and every two edges that share no particle, on a folded sheet, less the pairs whose patches
     hold no layers (``flat_patch_pairs``) and the pairs within the thickness of each other in the
-    sheet's starting shape (around the squeezed column, whose jittered triangles are not flat):
+    sheet's rest shape (around the squeezed column, whose jittered triangles are not flat):
     with pairs at every distance around the reach, and as densely as the thickness bound allows
     (every walk's and the list's capacity holds). The fold's layers are all listed; in the dense
     sheet, the flat layers' own neighbours within the reach are not."""
@@ -856,7 +883,7 @@ def test_the_candidate_list_holds_exactly_the_layered_pairs_within_the_reach(col
     first, second = first[apart], second[apart]  # every two edges that share no particle
     edge_distance = closest_distance_segments(*(x[edges[first][:, k]] for k in range(2)),
                                               *(x[edges[second][:, k]] for k in range(2)))
-    rest = model.garment.positions  # pairs this close at the start: left out for good
+    rest = model.garment.positions  # pairs this close at rest: left out for good
     vertex_at_rest = closest_distance_point_triangle(rest[vertex], *(rest[corners[:, k]]
                                                                      for k in range(3)))
     edge_at_rest = closest_distance_segments(*(rest[edges[first][:, k]] for k in range(2)),

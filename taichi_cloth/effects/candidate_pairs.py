@@ -14,7 +14,7 @@ The build: each triangle's box grown by the reach and each edge's by half of it,
 cloth's patches with their partners (``effects/mesh_patches.py``: the pairs of patches that may
 hold layers of cloth, flat neighbourhoods left out); each particle walks the triangles of its
 home patch's partners (the vertex–triangle pairs: a vertex and a triangle it is not a corner of,
-whose box holds it, and that were not within the thickness in the starting shape,
+whose box holds it, and that were not within the thickness in the rest shape,
 ``rest_neighbours.py``; a partner whose box is too far from the particle is skipped whole), and
 each pair of partners once (from the higher) their home edges against each other (the edge–edge
 pairs of edges sharing no particle, whose boxes overlap, and not within the thickness at the
@@ -359,7 +359,7 @@ class CandidatePairs(PairRecords):
     @ti.func
     def _left_out(self, row, other):
         """Whether the pair of row ``row`` (a particle, or particles + an edge) with triangle or
-        edge ``other`` was within the thickness in the starting shape (``rest_neighbours``)."""
+        edge ``other`` was within the thickness in the rest shape (``rest_neighbours``)."""
         left_out = 0
         for k in range(self.rest_start[row], self.rest_start[row + 1]):
             left_out |= int(self.rest_other[k] == other)

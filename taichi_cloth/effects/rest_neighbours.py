@@ -1,5 +1,5 @@
 """The pairs of cloth primitives that already lie within the self-collision thickness of each other
-in the cloth's starting shape and are neighbours along it: around edges shorter than twice the
+in the cloth's rest shape and are neighbours along it: around edges shorter than twice the
 thickness (a disc's centre, a garment file's small triangles at a dart or a seam), a vertex and a
 triangle it is not a corner of, or two edges that share no particle, may be that close while the
 cloth lies flat. Self-collision leaves them out for good (``candidate_pairs.py``;
@@ -31,10 +31,14 @@ def rest_neighbours(x: np.ndarray, triangles: np.ndarray, edges: np.ndarray,
     x = np.asarray(x, dtype=np.float64)
     triangle_box = _boxes(x[triangles], distance)
     edge_box = _boxes(x[edges], 0.5 * distance)
-    cell = max(float((triangle_box[1] - triangle_box[0]).max(initial=0.0)), distance, 1e-9)
-    origin = x.min(axis=0) - distance
-    particle, triangle = _sharing_cells(_filed(np.stack([x, x]), origin, cell),
-                                        _filed(triangle_box, origin, cell))
+    # one grid for all: cells a little wider than the widest box (so that no box meets more
+    # than two a side, rounding included), keyed alike in every filing
+    cell = 1.001 * max(float((triangle_box[1] - triangle_box[0]).max(initial=0.0)), distance)
+    origin = x.min(axis=0, initial=0.0) - distance
+    span = int(np.ceil((x.max(axis=0, initial=0.0) - origin + distance).max() / cell)) + 2
+    grid = (origin, cell, span)
+    particle, triangle = _sharing_cells(_filed(np.stack([x, x]), *grid),
+                                        _filed(triangle_box, *grid))
     inside = np.all((triangle_box[0][triangle] <= x[particle])
                     & (x[particle] <= triangle_box[1][triangle]), axis=1)
     inside &= np.all(triangles[triangle] != particle[:, None], axis=1)
@@ -43,7 +47,7 @@ def rest_neighbours(x: np.ndarray, triangles: np.ndarray, edges: np.ndarray,
     near = _point_triangle_distance(x[particle], *corners.transpose(1, 0, 2)) < distance
     particle, triangle = particle[near], triangle[near]
 
-    filed = _filed(edge_box, origin, cell)
+    filed = _filed(edge_box, *grid)
     first, second = _sharing_cells(filed, filed)
     keep = (first < second) & np.all((edge_box[0][first] <= edge_box[1][second])
                                      & (edge_box[0][second] <= edge_box[1][first]), axis=1)
@@ -61,7 +65,7 @@ def rest_neighbours(x: np.ndarray, triangles: np.ndarray, edges: np.ndarray,
               2 * distance + np.maximum(length[first], length[second])]
     ids = [(particle[:, None], triangles[triangle]), (edges[first], edges[second])]
     sources = np.concatenate([particle, edges[first].ravel()])
-    path_keys, path_length = _paths(edges, length, sources,
+    path_keys, path_length = _paths(len(x), edges, length, sources,
                                     max((w.max(initial=0.0) for w in within)))
     joined = [_joined(path_keys, path_length, len(x), *pair, bound)
               for pair, bound in zip(ids, within)]
@@ -69,11 +73,11 @@ def rest_neighbours(x: np.ndarray, triangles: np.ndarray, edges: np.ndarray,
             _sorted_pairs(first[joined[1]], second[joined[1]]))
 
 
-def _paths(edges: np.ndarray, length: np.ndarray, sources: np.ndarray,
+def _paths(count: int, edges: np.ndarray, length: np.ndarray, sources: np.ndarray,
            radius: float) -> tuple[np.ndarray, np.ndarray]:
-    """(keys source·N + particle, sorted; the shortest path [m] along the edges (of ``length``)
-    from each particle of ``sources`` to each particle within ``radius`` [m] of it)."""
-    count = int(edges.max(initial=-1)) + 1
+    """(keys source·``count`` + particle, sorted; the shortest path [m] along the edges (of
+    ``length``) from each particle of ``sources`` to each particle within ``radius`` [m] of
+    it), the mesh having ``count`` particles."""
     start_of, end_of = np.concatenate([edges[:, 0], edges[:, 1]]), np.concatenate(
         [edges[:, 1], edges[:, 0]])
     order = np.argsort(start_of, kind="stable")
@@ -125,12 +129,13 @@ def _boxes(corners: np.ndarray, grow: float) -> np.ndarray:
     return np.stack([corners.min(axis=1) - grow, corners.max(axis=1) + grow])
 
 
-def _filed(box: np.ndarray, origin: np.ndarray, cell: float) -> tuple[np.ndarray, np.ndarray]:
+def _filed(box: np.ndarray, origin: np.ndarray, cell: float,
+           span: int) -> tuple[np.ndarray, np.ndarray]:
     """(cell keys, box indices) of each box (2, n, 3) under every cell it meets: at most two
-    a side, the cells being at least as wide as the boxes; unique pairs."""
+    a side, the cells (``cell`` [m] wide from ``origin``, ``span`` a side) being wider than the
+    boxes; unique pairs."""
     lower = np.floor((box[0] - origin) / cell).astype(np.int64)
     upper = np.floor((box[1] - origin) / cell).astype(np.int64)
-    span = int(max(upper.max(initial=0), 0)) + 2
     keys, ids = [], []
     for step in np.ndindex(2, 2, 2):
         cells = lower + np.array(step)
