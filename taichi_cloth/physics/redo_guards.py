@@ -12,6 +12,8 @@ TUNNELLING_HALVINGS = 6  # a frame that tunnelled: down to dt/64 while it still 
 # must not cross the band in a step: 0.5 mm at 4 m/s is 1/8,000 s, `twirl`'s 1/240 s over 33)
 REDO_GAIN = 0.9  # a halving that leaves the strain (or depth) within this factor of the try
 # before, either way, shows one the step does not make (a tight garment): not halved again
+RUBBER_STRAIN = 0.10  # a frame stretched past it looks like rubber, not cloth (Provot 1995):
+# the strain guard halves it on to dt/64 (``TUNNELLING_HALVINGS``), not only to dt/8
 
 
 class RedoGuards:
@@ -36,7 +38,8 @@ class RedoGuards:
           the garment's, not the step's (``_held_by_garment``: a frame that began past the
           limit, a halving that left it within ``REDO_GAIN`` of the try before, either way,
           and no further than 1/``REDO_GAIN`` of the frame's start): down to dt/8
-          (``REDO_HALVINGS``), or as many halvings past the tunnelling guard's in a frame that tunnelled (at most dt/64: a fold that
+          (``REDO_HALVINGS``; a frame still stretched past ``RUBBER_STRAIN`` down to dt/64),
+          or as many halvings past the tunnelling guard's in a frame that tunnelled (at most dt/64: a fold that
           crossing-free smaller steps pushed apart hard, stretching the cloth 15 %, is redone
           smaller still).
         The try kept is the best (``_shortfall``): the last, unless an earlier one was better
@@ -66,8 +69,10 @@ class RedoGuards:
                 and halvings < TUNNELLING_HALVINGS
             deepest = min(halved["tunnelling"] + REDO_HALVINGS, TUNNELLING_HALVINGS)
             exceeded = [name for name, limit in self.redo_limits.items()
-                        if limit < measured[name] and halvings < deepest
-                        and not self._held_by_garment(name, limit, measured[name], before[name])]
+                        if limit < measured[name] and not self._held_by_garment(
+                            name, limit, measured[name], before[name])
+                        and halvings < (TUNNELLING_HALVINGS if name == "strain"
+                                        and measured[name] > RUBBER_STRAIN else deepest)]
             before = {name: measured[name] for name in self.redo_limits}
             if not (tunnelled or exceeded):
                 break
