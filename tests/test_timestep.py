@@ -9,7 +9,7 @@ import pytest
 
 from taichi_cloth.cloth.garment import build_garment
 from taichi_cloth.config.scene import load_scene
-from taichi_cloth.errors import InputError
+from taichi_cloth.errors import InputError, UnstableError
 from taichi_cloth.physics import simulation as simulation_module
 from taichi_cloth.physics.simulation import Simulation
 from taichi_cloth.physics.timestep import (IMPLICIT_PIN_TRAVEL, choose_time_step, fixed_time_step,
@@ -225,6 +225,23 @@ def test_a_requested_step_bypasses_the_estimate():
     step = choose_time_step(0.002, FRAME, "euler", damping_time=0.0, contact_modes=[],
                             safety=0.8, **one_spring(1e6))
     assert (step.substeps_per_frame, step.omega_max, step.stable_dt) == (17, None, None)
+
+
+@pytest.mark.parametrize("integrator, advised, not_advised", [
+    ("implicit", "lower simulation.dt", "use integrator"),
+    ("symplectic", "use integrator = \"implicit\"", "[effects.damping]"),
+])
+def test_a_frame_past_the_guard_advises_what_the_integrator_can_change(integrator, advised,
+                                                                        not_advised):
+    """A frame past ``max_speed`` (set below any speed but the start's, 0) with no retries left
+    ends the run in one ``UnstableError`` that names the frame and advises a smaller step, and
+    the implicit integrator only to a run that does not use it already."""
+    scene = load_scene("sheet", ("cloth.resolution=[6, 6]", f"simulation.integrator={integrator}",
+                                 "simulation.max_speed=1e-4", "simulation.max_retries=0"))
+    with pytest.raises(UnstableError) as failure:
+        Simulation(scene).run(1)
+    message = str(failure.value)
+    assert "frame 1" in message and advised in message and not_advised not in message
 
 
 def test_a_frame_stretched_past_redo_strain_is_redone_at_a_smaller_step():

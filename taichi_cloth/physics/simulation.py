@@ -271,7 +271,9 @@ class Simulation(RedoGuards):
             self._roll_back()
             self.set_time_step(self.time_step.dt / 2, 2 * self.time_step.substeps_per_frame)
         integrator = self.scene.simulation.integrator
-        advice = "lower simulation.dt or set it to \"auto\", or use integrator = \"implicit\""
+        advice = "lower simulation.dt or set it to \"auto\""
+        if integrator != "implicit":
+            advice += ", or use integrator = \"implicit\""
         if integrator == "euler":
             advice += "; explicit Euler also needs [effects.damping]"
         halvings = f" after {record.retries} halvings of the step" if record.retries else ""
