@@ -455,20 +455,28 @@ def test_a_redone_frame_gets_back_the_records_of_its_start():
     """Records kept at a frame's start with vertex 3 above the face (``back_up``); the frame
     takes it round the triangle's edge, 15 mm out, to below the face (no crossing: pushed on down
     there), then is rolled back: the side of the start is what counts again, so the vertex
-    3 mm below is pushed back up."""
+    3 mm below is pushed back up; and the list's builds, its dropped pairs, the put-backs and
+    the refusals counted in the discarded frame are not counted."""
     forces, state, out, effect = two_triangle_physics()
     below = vertex_over_the_triangle(-0.003)
     self_collision_force(vertex_over_the_triangle(0.004))
     finish_step(effect, state)
     effect.back_up()
+    counters = (effect.pairs.rebuilds, effect.pairs.overflow, effect.separations, effect.refusals)
+    counted = [counter[None] for counter in counters]
     for positions in (vertex_over_the_triangle(0.004, -1.015),
                       vertex_over_the_triangle(-0.004, -1.015), below):
         state.x.from_numpy(positions)
+        effect.pairs.ask_rebuild()
         forces.evaluate(state.x, state.v, 0.0, out)
         finish_step(effect, state)
+    for counter in counters[1:]:  # (as a discarded try may have counted them)
+        counter[None] += 3
+    assert effect.pairs.rebuilds[None] >= counted[0] + 3
     forces.evaluate(state.x, state.v, 0.0, out)
     assert out.to_numpy()[3, 1] == pytest.approx(-MASS[3] * K_HAT * 0.007, rel=1e-9)
     effect.roll_back()
+    assert [counter[None] for counter in counters] == counted
     state.x.from_numpy(below)
     forces.evaluate(state.x, state.v, 0.0, out)
     assert out.to_numpy()[3, 1] == pytest.approx(MASS[3] * K_HAT * 0.013, rel=1e-9)

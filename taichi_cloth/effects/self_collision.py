@@ -361,9 +361,11 @@ class SelfCollision(Effect):
 
     def back_up(self) -> None:
         self.pairs.back_up()
+        self._kept_counts = (self.separations[None], self.refusals[None])  # (a redo's own: not)
 
     def roll_back(self) -> None:
         self.pairs.roll_back()
+        self.separations[None], self.refusals[None] = self._kept_counts
 
     def forget_history(self) -> None:
         self.pairs.forget()
