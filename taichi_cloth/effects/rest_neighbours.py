@@ -10,7 +10,7 @@ edges joins a particle of one primitive to a particle of the other within twice 
 plus the two primitives' longest edge (round a dart or across a thin strip the path is about
 the distance itself; between two layers it runs round to where they are sewn, or nowhere).
 
-Found in NumPy once, when self-collision is set up: a grid of cells at least as wide as the
+Found in NumPy once, when self-collision is set up: a grid of cells a little wider than the
 largest grown box, each box filed under the (at most 8) cells it meets, every pair sharing a cell
 tested for its boxes' overlap and then for its exact distance (the closest points of a point and
 a triangle, and of two segments: C. Ericson, "Real-Time Collision Detection", 2005, §5.1.5 and
@@ -34,8 +34,8 @@ def rest_neighbours(x: np.ndarray, triangles: np.ndarray, edges: np.ndarray,
     # one grid for all: cells a little wider than the widest box (so that no box meets more
     # than two a side, rounding included), keyed alike in every filing
     cell = 1.001 * max(float((triangle_box[1] - triangle_box[0]).max(initial=0.0)), distance)
-    origin = x.min(axis=0, initial=0.0) - distance
-    span = int(np.ceil((x.max(axis=0, initial=0.0) - origin + distance).max() / cell)) + 2
+    origin = x.min(axis=0) - distance  # (the keys then span the cloth's extent, wherever it is)
+    span = int(np.ceil((x.max(axis=0) - origin + distance).max() / cell)) + 2
     grid = (origin, cell, span)
     particle, triangle = _sharing_cells(_filed(np.stack([x, x]), *grid),
                                         _filed(triangle_box, *grid))
