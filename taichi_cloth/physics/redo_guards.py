@@ -39,9 +39,9 @@ class RedoGuards:
           limit, a halving that left it within ``REDO_GAIN`` of the try before, either way,
           and no further than 1/``REDO_GAIN`` of the frame's start): down to dt/8
           (``REDO_HALVINGS``; a frame still stretched past ``RUBBER_STRAIN`` down to dt/64),
-          or as many halvings past the tunnelling guard's in a frame that tunnelled (at most dt/64: a fold that
-          crossing-free smaller steps pushed apart hard, stretching the cloth 15 %, is redone
-          smaller still).
+          or as many halvings past the tunnelling guard's in a frame that tunnelled (at most
+          dt/64: a fold that crossing-free smaller steps pushed apart hard, stretching the
+          cloth 15 %, is redone smaller still).
         The try kept is the best (``_shortfall``): the last, unless an earlier one was better
         (a smaller step made the frame worse: a fold that met at another moment, harder), whose
         end, kept as a snapshot with what the integrator and the effects carry, is put back
