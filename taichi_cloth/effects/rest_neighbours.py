@@ -20,6 +20,8 @@ followed past the longest such bound)."""
 
 import numpy as np
 
+from taichi_cloth.gather import gather_lists
+
 
 def rest_neighbours(x: np.ndarray, triangles: np.ndarray, edges: np.ndarray,
                     distance: float) -> tuple[np.ndarray, np.ndarray]:
@@ -78,11 +80,8 @@ def _paths(count: int, edges: np.ndarray, length: np.ndarray, sources: np.ndarra
     """(keys source·``count`` + particle, sorted; the shortest path [m] along the edges (of
     ``length``) from each particle of ``sources`` to each particle within ``radius`` [m] of
     it), the mesh having ``count`` particles."""
-    start_of, end_of = np.concatenate([edges[:, 0], edges[:, 1]]), np.concatenate(
-        [edges[:, 1], edges[:, 0]])
-    order = np.argsort(start_of, kind="stable")
-    neighbour, step = end_of[order], np.concatenate([length, length])[order]
-    row = np.searchsorted(start_of[order], np.arange(count + 1))
+    row, edge, neighbour = gather_lists(edges, count)  # each particle's edges, both ways
+    step = length[edge]
     best_keys = _distinct(sources.astype(np.int64) * count + sources)
     best = np.zeros(len(best_keys))
     frontier_keys, frontier = best_keys, best
