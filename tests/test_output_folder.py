@@ -232,6 +232,20 @@ def test_the_summary_fits_in_100_columns():
         assert all(len(line) <= 100 for line in lines[:-1])
 
 
+def test_the_summary_says_when_a_given_step_was_split_for_self_collision():
+    from taichi_cloth.output.run import summary
+    stats = {"scene": "hula-paper", "frames": 150, "integrator": "symplectic", "dt": 3.3e-4,
+             "substeps_per_frame": 101, "retries": 0, "max_strain": 0.1, "max_penetration": 0.0,
+             "max_self_intersections": 0, "effects": ["gravity", "self_collision"],
+             "wall_seconds": {"simulate": 2.0}}
+    for stable, shown in ((4.142e-4, True), (None, False)):
+        text = summary(stats | {"time_step": {"requested": 0.002, "stable_dt": stable}},
+                       Path("out"))
+        said = [line for line in text.splitlines() if "split below the scene's 0.002 s" in line]
+        assert len(said) == shown and all(len(line) <= 100 for line in said)
+        assert not shown or "0.000414 s" in said[0]
+
+
 def test_the_summary_says_how_to_add_self_collision_only_where_the_cloth_crossed_without_it():
     from taichi_cloth.output.run import summary
     stats = {"scene": "hula", "frames": 150, "integrator": "implicit", "dt": 1 / 60,

@@ -227,6 +227,52 @@ def test_a_requested_step_bypasses_the_estimate():
     assert (step.substeps_per_frame, step.omega_max, step.stable_dt) == (17, None, None)
 
 
+def rk4_limit_at_half_damping():
+    """Largest ωh of RK4 on ẍ = −ω²x − ω·ẋ (ζ = 0.5): the root of |R(z)| = 1 on the ray of
+    the eigenvalue z = y·(−1/2 + i·√3/2) (R the fourth-order Taylor polynomial, bisected)."""
+    direction = complex(-0.5, math.sqrt(3) / 2)
+    low, high = 1.0, 4.0
+    for _ in range(80):
+        z = 0.5 * (low + high) * direction
+        grows = abs(1 + z + z ** 2 / 2 + z ** 3 / 6 + z ** 4 / 24) > 1
+        low, high = (low, 0.5 * (low + high)) if grows else (0.5 * (low + high), high)
+    return low
+
+
+@pytest.mark.parametrize("integrator, limit", [
+    ("symplectic", symplectic_limit(1.0)),  # the friction damper binds (0.828 < 1.236)
+    ("rk4", rk4_limit_at_half_damping()),  # the normal spring binds (2.623 < 2.785)
+    ("euler", 1.0),  # ωh ≤ 2ζ: the normal spring at ζ = 0.5
+])
+def test_a_requested_step_is_split_until_the_bounding_modes_are_stable(integrator, limit):
+    """Self-collision's penalty bounds a step given in seconds too (docs/physics.md, "Time
+    step"): its modes at ω = √k̂ (ζ = 0.5 and the friction damper's ζ = 1) make the frame's
+    substeps no longer than ``safety`` × the integrator's limit, which ``stable_dt`` reports;
+    the request is kept, and the springs (ω = 10³ here, unstable for explicit Euler at any
+    step) are not looked at. A request within the bound, and backward Euler, are not split."""
+    stiffness, safety = 4e6, 0.8
+    modes = dict(damping_time=0.0, contact_modes=[(stiffness, 0.5)], safety=safety,
+                 bounding_modes=[(stiffness, 0.5)], **one_spring(1e3))
+    step = choose_time_step(0.002, FRAME, integrator, **modes)
+    bound = limit / math.sqrt(stiffness)
+    assert step.stable_dt == pytest.approx(bound, rel=1e-6)
+    assert step.requested == 0.002 and step.omega_max is None
+    assert step.dt <= safety * bound * (1 + 1e-6) < 0.002
+    assert step.dt * step.substeps_per_frame == pytest.approx(FRAME, rel=1e-14)
+    assert FRAME / (step.substeps_per_frame - 1) > safety * step.stable_dt  # fewest substeps
+    within = choose_time_step(0.5 * safety * bound, FRAME, integrator, **modes)
+    assert within == fixed_time_step(0.5 * safety * bound, FRAME)
+    assert choose_time_step(0.002, FRAME, "implicit", **modes) == fixed_time_step(0.002, FRAME)
+
+
+def test_an_undamped_bounding_penalty_under_explicit_euler_is_refused():
+    """Explicit Euler is stable at no step for an undamped mode: a one-line error naming the
+    damping key, not a step of zero."""
+    with pytest.raises(InputError, match="effects.self_collision.damping"):
+        choose_time_step(0.002, FRAME, "euler", damping_time=0.0, contact_modes=[(1e6, 0.0)],
+                         safety=0.8, bounding_modes=[(1e6, 0.0)], **one_spring(10.0))
+
+
 @pytest.mark.parametrize("integrator, advised, not_advised", [
     ("implicit", "lower simulation.dt", "use integrator"),
     ("symplectic", "use integrator = \"implicit\"", "[effects.damping]"),

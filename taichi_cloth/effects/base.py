@@ -48,7 +48,10 @@ Genesis' ``force_fields.py``). What an effect declares:
   face given by ``face_air(face_velocity)`` (on components) and the factor ``face_factor``
   (½·ρ·C_d [kg/m³]): on a packed grid cloth the SIMD pass then computes each face once, in
   lanes, and each particle reads back its six (drag).
-- ``stability_modes()``: the (k̂ [1/s²], ζ) of each stiff mode it adds, for ``dt = "auto"``;
+- ``stability_modes()``: the (k̂ [1/s²], ζ) of each stiff mode it adds, for ``dt = "auto"``,
+  and with ``bounds_given_step`` for a step in seconds too (an explicit one split until they
+  are stable: self-collision's penalty, whose instability stays within its band, unseen by the
+  frame guard);
   ``fit_time_step(time_step, integrator)``: the step then chosen (self-collision's default
   stiffness); ``follow_redo(halvings)``: a frame redone by the tunnelling guard at dt/2^halvings
   (0: the run's step again), which a penalty whose stopping speed the step allows may stiffen
@@ -102,6 +105,7 @@ class Effect:
     has_coupled_jacobian = False
     needs_body = False  # the scene must have a [body] section
     arranges_own_passes = False  # ``prepare``'s loops stay as it configures them
+    bounds_given_step = False  # its ``stability_modes`` split a step in seconds too
     uniform_acceleration = None
     touched_particles = None
     lane_faces = False

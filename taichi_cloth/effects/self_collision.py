@@ -90,7 +90,8 @@ class SelfCollision(Effect):
     name = "self_collision"
     Settings = SelfCollisionSettings
     has_jacobian = True
-    arranges_own_passes = True  # the list's build: serial fills, parallel walks
+    arranges_own_passes = True  # the list's build and sweeps on one thread
+    bounds_given_step = True  # a given explicit step split for the penalty (docs/physics.md)
 
     def __init__(self, settings: SelfCollisionSettings, context: EffectContext):
         super().__init__(settings, context)
@@ -135,9 +136,8 @@ class SelfCollision(Effect):
         self.pairs.upload()
 
     def follow_redo(self, halvings: int) -> None:
-        """A frame redone by the tunnelling guard at the run's step over 2^``halvings``: the
-        stiffness (given or fitted) 4^halvings times the run's (``redo_stiffness``: each halving
-        also doubles the closing speed thickness·√k̂ stopped); the run's again at 0."""
+        """A frame redone at the run's step over 2^``halvings``: the stiffness 4^halvings times
+        the run's (``redo_stiffness``: thickness·√k̂ stopped doubles); the run's again at 0."""
         self.stiffness_now[None] = redo_stiffness(self.stiffness, halvings)
 
     @ti.func

@@ -293,6 +293,9 @@ def summary(stats: dict, directory: Path) -> str:
         pins = step.get("pin_acceleration")
         lines.append(f"  dt auto: ω_max {step['omega_max']:.3g} rad/s, stability bound {bound}"
                      + (f", pins' peak acceleration {pins:.3g} m/s²" if pins else ""))
+    elif step.get("stable_dt") is not None:
+        lines.append(f"  dt split below the scene's {step['requested']:g} s: self-collision's "
+                     f"penalty is stable up to {step['stable_dt']:.3g} s")
     settled = stats.get("settle")
     if settled and settled.get("step_halvings"):
         lines.append(f"  settled at 1/{2 ** settled['step_halvings']} of the scene's step, "

@@ -116,11 +116,13 @@ class Simulation(RedoGuards):
     def _choose_time_step(self) -> TimeStep:
         scene, garment, model = self.scene, self.garment, self.model
         contact_modes = [mode for effect in self.effects for mode in effect.stability_modes()]
+        bounding_modes = [mode for effect in self.effects if effect.bounds_given_step
+                          for mode in effect.stability_modes()]
         return choose_time_step(
             scene.simulation.dt, self.frame_duration, scene.simulation.integrator,
             garment.positions, model.host_spring_ends, model.host_stiffness, garment.mass,
             ~garment.pinned, model.dashpot_time or 0.0, contact_modes, scene.simulation.safety,
-            self.forces.coupled_effects, self._pin_drive)
+            self.forces.coupled_effects, self._pin_drive, bounding_modes)
 
     def _pin_drive(self) -> tuple[float, float]:
         """(the largest acceleration [m/s²] of the pins the body carries during the scene's

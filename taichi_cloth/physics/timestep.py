@@ -30,7 +30,7 @@ import numpy as np
 
 from taichi_cloth.errors import InputError
 from taichi_cloth.gather import scatter_sum
-from taichi_cloth.physics.integrators.stability import largest_stable_step
+from taichi_cloth.physics.integrators.stability import contact_step_limit, largest_stable_step
 
 IMPLICIT_FRAME_FRACTION = 0.5
 IMPLICIT_PIN_TRAVEL = 0.045  # the largest a_pin·h²/ℓ_pin of a backward Euler step (docstring)
@@ -39,7 +39,8 @@ IMPLICIT_PIN_TRAVEL = 0.045  # the largest a_pin·h²/ℓ_pin of a backward Eule
 @dataclass(frozen=True)
 class TimeStep:
     """dt [s] and substeps per frame; for ``auto`` also the estimate behind it: ω_max [rad/s] and
-    the integrator's stability bound [s] (None when it has none: backward Euler)."""
+    the integrator's stability bound [s] (None when it has none: backward Euler); for a step in
+    seconds split further, the bound of the modes that split it (``choose_time_step``)."""
 
     dt: float
     substeps_per_frame: int
@@ -90,23 +91,37 @@ def highest_frequency(positions, ends, stiffness, mass, free, iterations: int = 
     return math.sqrt(max(min(1.1 * estimate, gershgorin), estimate, 0.0))
 
 
-def fixed_time_step(requested: float, frame_duration: float) -> TimeStep:
+def fixed_time_step(requested: float, frame_duration: float,
+                    stable: float | None = None, safety: float = 1.0) -> TimeStep:
     """The step a scene with dt = ``requested`` [s] really takes: the frame of
-    ``frame_duration`` [s] split into the fewest equal substeps no longer than ``requested``."""
-    substeps = max(1, math.ceil(frame_duration / requested - 1e-9))
-    return TimeStep(frame_duration / substeps, substeps, requested)
+    ``frame_duration`` [s] split into the fewest equal substeps no longer than ``requested``,
+    nor than ``safety`` × ``stable`` [s] when that bound is given (kept as ``stable_dt``
+    where it split the step further)."""
+    longest = requested if stable is None else min(requested, safety * stable)
+    substeps = max(1, math.ceil(frame_duration / longest - 1e-9))
+    return TimeStep(frame_duration / substeps, substeps, requested,
+                    stable_dt=stable if longest < requested else None)
 
 
 def choose_time_step(requested, frame_duration: float, integrator: str, positions, ends, stiffness,
                      mass, free, damping_time: float, contact_modes, safety: float,
-                     coupled=(), pin_drive=lambda: (0.0, 0.0)) -> TimeStep:
+                     coupled=(), pin_drive=lambda: (0.0, 0.0), bounding_modes=()) -> TimeStep:
     """The substep for a frame of ``frame_duration`` [s]; ``requested`` is seconds or "auto".
     contact_modes: (k̂ [1/s²], ζ) of each declared contact (collision, ground); coupled: the
     effects whose Hessian adds to the springs' (``highest_frequency``); pin_drive: a function
     giving (a_pin [m/s²], ℓ_pin [m]) (module docstring), called for backward Euler's auto
-    step."""
+    step; bounding_modes: the contact modes that bound a step in seconds too (an explicit
+    integrator's step split until they are stable: self-collision's penalty, whose instability
+    stays within its band and so never blows up where the frame guard would see it)."""
     if requested != "auto":
-        return fixed_time_step(requested, frame_duration)
+        stable = None
+        if integrator != "implicit" and bounding_modes:
+            stable = contact_step_limit(integrator, bounding_modes)
+            if stable <= 0.0:
+                raise InputError(f"effects.self_collision.damping: {integrator} is stable at no "
+                                 f"step for an undamped penalty; give it damping or choose "
+                                 f"another integrator")
+        return fixed_time_step(requested, frame_duration, stable, safety)
     omega_spring = highest_frequency(positions, ends, stiffness, mass, free, coupled=coupled)
     contact_stiffness = max((k for k, _ in contact_modes), default=0.0)
     omega_max = math.sqrt(omega_spring ** 2 + contact_stiffness)
