@@ -262,6 +262,9 @@ def test_a_requested_step_is_split_until_the_bounding_modes_are_stable(integrato
     assert FRAME / (step.substeps_per_frame - 1) > safety * step.stable_dt  # fewest substeps
     within = choose_time_step(0.5 * safety * bound, FRAME, integrator, **modes)
     assert within == fixed_time_step(0.5 * safety * bound, FRAME)
+    # a bound below the request that adds no substep (1/30 s in 4 either way) splits nothing
+    same = fixed_time_step(0.01, FRAME, stable=0.009 / safety, safety=safety)
+    assert same == fixed_time_step(0.01, FRAME) and same.substeps_per_frame == 4
     assert choose_time_step(0.002, FRAME, "implicit", **modes) == fixed_time_step(0.002, FRAME)
 
 

@@ -91,16 +91,24 @@ def highest_frequency(positions, ends, stiffness, mass, free, iterations: int = 
     return math.sqrt(max(min(1.1 * estimate, gershgorin), estimate, 0.0))
 
 
+def fewest_substeps(frame_duration: float, longest: float) -> int:
+    """The fewest equal substeps of a frame of ``frame_duration`` [s] no longer than
+    ``longest`` [s] (a step that divides the frame exactly, up to rounding, is kept)."""
+    return max(1, math.ceil(frame_duration / longest - 1e-9))
+
+
 def fixed_time_step(requested: float, frame_duration: float,
                     stable: float | None = None, safety: float = 1.0) -> TimeStep:
     """The step a scene with dt = ``requested`` [s] really takes: the frame of
     ``frame_duration`` [s] split into the fewest equal substeps no longer than ``requested``,
     nor than ``safety`` × ``stable`` [s] when that bound is given (kept as ``stable_dt``
-    where it split the step further)."""
-    longest = requested if stable is None else min(requested, safety * stable)
-    substeps = max(1, math.ceil(frame_duration / longest - 1e-9))
-    return TimeStep(frame_duration / substeps, substeps, requested,
-                    stable_dt=stable if longest < requested else None)
+    where it split the frame into more substeps)."""
+    substeps = fewest_substeps(frame_duration, requested)
+    split = substeps
+    if stable is not None:
+        split = max(substeps, fewest_substeps(frame_duration, safety * stable))
+    return TimeStep(frame_duration / split, split, requested,
+                    stable_dt=stable if split > substeps else None)
 
 
 def choose_time_step(requested, frame_duration: float, integrator: str, positions, ends, stiffness,
@@ -130,7 +138,7 @@ def choose_time_step(requested, frame_duration: float, integrator: str, position
         acceleration, spacing = pin_drive()
         if acceleration > 0:
             longest = min(longest, math.sqrt(IMPLICIT_PIN_TRAVEL * spacing / acceleration))
-        substeps = max(1, math.ceil(frame_duration / longest - 1e-9))
+        substeps = fewest_substeps(frame_duration, longest)
         return TimeStep(frame_duration / substeps, substeps, "auto", omega_max, None,
                         acceleration, spacing)
     stable = largest_stable_step(integrator, omega_max, damping_time, contact_modes)
@@ -138,5 +146,5 @@ def choose_time_step(requested, frame_duration: float, integrator: str, position
         raise InputError(f"simulation.dt: \"auto\" finds no stable step for {integrator} "
                          f"(explicit Euler needs [effects.damping]); give dt in seconds or "
                          f"choose another integrator")
-    substeps = max(1, math.ceil(frame_duration / (safety * stable) - 1e-9))
+    substeps = fewest_substeps(frame_duration, safety * stable)
     return TimeStep(frame_duration / substeps, substeps, "auto", omega_max, stable)
