@@ -45,14 +45,17 @@ class SimulationConfig:
                                doc="times a bad frame is redone with the step halved")
     redo_strain: float = setting(0.0, "float", low=0.0,
                                  doc="a frame that ends with a larger max strain is redone at "
-                                     "half, a quarter, then an eighth of the step, its best "
-                                     "try kept (0: never)")
+                                     "half, a quarter, then an eighth of the step (past 10 %, "
+                                     "or after tunnelling, down to a 64th; not where the "
+                                     "garment holds it: a tight waist), its best try kept "
+                                     "(0: never)")
     redo_penetration: float = setting(0.0, "float", low=0.0,
                                       doc="a frame that ends with a point of the cloth's surface "
                                           "deeper than this [m] inside a collider (capsule, "
                                           "ground, plate; without the margin) is redone at half, "
-                                          "a quarter, then an eighth of the step, its best try "
-                                          "kept (0: never)")
+                                          "a quarter, then an eighth of the step (after "
+                                          "tunnelling, down to a 64th; not where the garment "
+                                          "holds it), its best try kept (0: never)")
     settle: float = setting(0.0, "float", low=0.0, high=60.0,
                             doc="seconds at most that the garment settles on the body, held "
                                 "still, before frame 0 (0: start from the pattern shape)")

@@ -88,8 +88,7 @@ def _paths(count: int, edges: np.ndarray, length: np.ndarray, sources: np.ndarra
     while len(frontier_keys):
         source, at = frontier_keys // count, frontier_keys % count
         counts = row[at + 1] - row[at]
-        k = np.repeat(row[at], counts) + np.arange(counts.sum()) - np.repeat(
-            np.cumsum(counts) - counts, counts)
+        k = _ranges(row[at], counts)
         keys = np.repeat(source, counts) * count + neighbour[k]
         reached = np.repeat(frontier, counts) + step[k]
         keys, reached = _shortest(keys[reached <= radius], reached[reached <= radius])
@@ -146,6 +145,12 @@ def _filed(box: np.ndarray, origin: np.ndarray, cell: float,
     return filed // count, filed % count
 
 
+def _ranges(starts: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """The indices starts[k], starts[k] + 1, … (counts[k] of them) for every k, in order."""
+    return np.repeat(starts, counts) + np.arange(counts.sum()) - np.repeat(
+        np.cumsum(counts) - counts, counts)
+
+
 def _sharing_cells(first: tuple, second: tuple) -> tuple[np.ndarray, np.ndarray]:
     """(i, j): every pair of an entry of ``first`` and one of ``second`` ((cell keys, indices)
     each) filed under the same cell, once however many cells they share."""
@@ -154,8 +159,7 @@ def _sharing_cells(first: tuple, second: tuple) -> tuple[np.ndarray, np.ndarray]
     low = np.searchsorted(keys, first[0], "left")
     counts = np.searchsorted(keys, first[0], "right") - low
     i = np.repeat(first[1], counts)
-    offsets = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
-    j = ids[np.repeat(low, counts) + offsets]
+    j = ids[_ranges(low, counts)]
     count = int(max(second[1].max(initial=0), 0)) + 1
     pairs = _distinct(i * count + j)
     return pairs // count, pairs % count

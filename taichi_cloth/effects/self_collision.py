@@ -136,8 +136,8 @@ class SelfCollision(Effect):
         self.pairs.upload()
 
     def follow_redo(self, halvings: int) -> None:
-        """A frame redone at the run's step over 2^``halvings``: the stiffness 4^halvings times
-        the run's (``redo_stiffness``: thickness·√k̂ stopped doubles); the run's again at 0."""
+        """A frame the tunnelling guard redoes at the run's step over 2^``halvings``: 4^halvings
+        × the run's stiffness (``redo_stiffness``: thickness·√k̂ stopped doubles); 0: the run's."""
         self.stiffness_now[None] = redo_stiffness(self.stiffness, halvings)
 
     @ti.func

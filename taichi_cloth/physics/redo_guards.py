@@ -130,11 +130,14 @@ class RedoGuards:
         known (the first frame, a restored snapshot; else the kept try's, from the frame
         before): its crossing pairs (``_shortfall``) and the guards' measures
         (``_held_by_garment``)."""
-        if self.guards_crossings and self._crossings is None:
-            self._crossings = self.intersections.count(self.positions())
-        if self.redo_limits and self._measured is None:
+        crossings_unknown = self.guards_crossings and self._crossings is None
+        measures_unknown = self.redo_limits and self._measured is None
+        if crossings_unknown or measures_unknown:  # (one host copy of the state)
             x, _, strain, _ = self._end_state()
-            self._measured = self._guard_measures(x, strain)[0]
+            if crossings_unknown:
+                self._crossings = self.intersections.count(x)
+            if measures_unknown:
+                self._measured = self._guard_measures(x, strain)[0]
 
     def _held_by_garment(self, name: str, limit: float, measure: float, before: float) -> bool:
         """Whether a try's ``measure`` past the guard's ``limit`` (``before``: the try's before

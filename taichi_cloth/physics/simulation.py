@@ -115,9 +115,11 @@ class Simulation(RedoGuards):
 
     def _choose_time_step(self) -> TimeStep:
         scene, garment, model = self.scene, self.garment, self.model
-        contact_modes = [mode for effect in self.effects for mode in effect.stability_modes()]
-        bounding_modes = [mode for effect in self.effects if effect.bounds_given_step
-                          for mode in effect.stability_modes()]
+        contact_modes, bounding_modes = [], []
+        for effect in self.effects:
+            modes = effect.stability_modes()
+            contact_modes += modes
+            bounding_modes += modes if effect.bounds_given_step else []
         return choose_time_step(
             scene.simulation.dt, self.frame_duration, scene.simulation.integrator,
             garment.positions, model.host_spring_ends, model.host_stiffness, garment.mass,
