@@ -415,6 +415,24 @@ def test_the_best_try_of_a_redone_frame_is_kept(monkeypatch, strains, began, kep
         np.testing.assert_array_equal(value, reference.integrator.memory()[name])
 
 
+def test_a_smaller_step_that_blows_up_keeps_the_best_try_before_it(monkeypatch):
+    """A redo at dt/4 that ends past ``blowup_strain`` (faked) is not the frame guard's to
+    retry at half the run's step: the best try before it (dt, the least strain) is put back,
+    bit for bit that frame at dt, and the run keeps its step."""
+    base = ("cloth.resolution=[6, 6]", "simulation.integrator=symplectic")
+    guarded = Simulation(load_scene("sheet", base + ("simulation.redo_strain=1e-9",)))
+    dt = guarded.time_step.dt
+    strains = (0.05, 0.09, 2.0)
+    monkeypatch.setattr(simulation_module, "largest_stretch_strain", lambda model, x: strains[
+        round(math.log2(dt / guarded.time_step.dt))])
+    record = guarded.run(1)
+    assert record.retries == 0 and guarded.time_step.dt == dt
+    assert record.frames[1].max_strain == 0.05 and record.frames[1].extra["strain_halvings"] == 0
+    reference = Simulation(load_scene("sheet", base + (f"simulation.dt={dt!r}",)))
+    reference.run(1)
+    np.testing.assert_array_equal(guarded.positions(), reference.positions())
+
+
 def test_a_try_that_tunnels_less_is_kept_before_one_that_stretches_less(monkeypatch):
     """Crossing pairs come first: a frame that crosses at dt and not at smaller steps (counted
     as faked), stretched least at dt and more at each smaller step, keeps its try at dt/2 (put

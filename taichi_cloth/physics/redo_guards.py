@@ -43,10 +43,12 @@ class RedoGuards:
           dt/64: a fold that crossing-free smaller steps pushed apart hard, stretching the
           cloth 15 %, is redone smaller still).
         The try kept is the best (``_shortfall``): the last, unless an earlier one was better
-        (a smaller step made the frame worse: a fold that met at another moment, harder), whose
-        end, kept as a snapshot with what the integrator and the effects carry, is put back
-        exactly (``Simulation.restore``). The step goes back to the run's afterwards: a frame
-        that a smaller step cannot mend costs that frame, not the run."""
+        (a smaller step made the frame worse: a fold that met at another moment, harder) or the
+        last broke down or blew up, whose end, kept as a snapshot with what the integrator and
+        the effects carry, is put back exactly (``Simulation.restore``): only a frame whose
+        first try fails is the frame guard's to redo at half the run's step. The step goes back
+        to the run's afterwards: a frame that a smaller step cannot mend costs that frame, not
+        the run."""
         dt, substeps = self.time_step.dt, self.time_step.substeps_per_frame
         depth = None
         refines = self.guards_crossings or bool(self.redo_limits)
@@ -82,9 +84,9 @@ class RedoGuards:
             halved["tunnelling"] += tunnelled
             for name in exceeded:
                 halved[name] += 1
-        if problem is None and best is not None and best[0] < shortfall:
-            self.restore(best[1])
-            x, v, strain, crossings, depth, kept, measured = best[2]
+        if best is not None and (problem is not None or best[0] < shortfall):
+            self.restore(best[1])  # (a smaller step that broke down or blew up: the best before)
+            problem, (x, v, strain, crossings, depth, kept, measured) = None, best[2]
         if problem is None:  # what the next frame's tries are compared with
             self._crossings = crossings
             if refines:
