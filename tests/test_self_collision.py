@@ -137,6 +137,62 @@ def test_far_apart_nothing_acts():
     assert np.all(self_collision_force(positions) == 0.0)
 
 
+def tip_to_tip(gap: float) -> np.ndarray:
+    """Two fans of six triangles, 2 cm across, their tips on the y axis ``gap`` [m] apart: the
+    upper one (tip 0, rim 1–6) opening upwards, the lower one (tip 7, rim 8–13) downwards,
+    turned 30° from it. Within the thickness only the tips meet."""
+    angle = np.radians(60.0 * np.arange(6))
+    rim = np.stack([np.cos(angle), np.full(6, 0.5), np.sin(angle)], axis=1) * 0.02
+    turned = np.stack([np.cos(angle + np.radians(30)), np.full(6, -0.5),
+                       np.sin(angle + np.radians(30))], axis=1) * 0.02
+    return np.concatenate([[[0.0, gap, 0.0]], rim + [0.0, gap, 0.0], [[0.0, 0.0, 0.0]], turned])
+
+
+@functools.cache
+def tip_to_tip_physics():
+    """The two fans' model (every particle 0.1 kg) with only the effect: (forces, state,
+    output field, the effect)."""
+    fan = [[0, 1 + k, 1 + (k + 1) % 6] for k in range(6)]
+    triangles = fan + [[7 + corner for corner in triangle] for triangle in fan]
+    model = Model(triangle_mesh(tip_to_tip(0.005), triangles, np.full(14, 0.1)), "f64")
+    physics = assemble(model, [(SelfCollision, SETTINGS)])
+    return physics.forces, model.state(), ti.Vector.field(3, ti.f64, 14), physics.effects[0]
+
+
+def test_a_vertex_resting_on_a_vertex_is_pushed_by_every_pair_around_them():
+    """Tip on tip, 4 mm apart: the upper tip is within the thickness of the lower fan's six
+    triangles (its tip their closest point), the lower tip of the upper fan's six, and each of
+    the upper tip's six edges of each of the lower tip's six (their ends the closest points):
+    6 + 6 + 36 = 48 pairs push the tips apart along y, m·k̂·(δ − 4 mm) each. So the mode of
+    the tips moving apart, measured from the forces by central differences, is 2·48·k̂: the
+    mode that ``dt = "auto"`` and the split of a given step take (docs/physics.md, "Time
+    step"); counting four contacts a particle there, the skirt of `hula-paper` was launched."""
+    forces, state, out, effect = tip_to_tip_physics()
+    mass, gap, nudge = 0.1, 0.004, 1e-7
+
+    def tips_force(x):
+        effect.forget_history()
+        state.x.from_numpy(x)
+        state.v.fill(0.0)
+        forces.evaluate(state.x, state.v, 0.0, out)
+        return out.to_numpy()
+
+    x = tip_to_tip(gap)
+    force = tips_force(x)
+    assert force[0] == pytest.approx([0.0, 48 * mass * K_HAT * (THICKNESS - gap), 0.0],
+                                     rel=1e-9, abs=1e-12)
+    np.testing.assert_allclose(force.sum(axis=0), 0.0, atol=1e-12)
+    apart, closer = x.copy(), x.copy()
+    apart[0, 1] += nudge
+    apart[7, 1] -= nudge
+    closer[0, 1] -= nudge
+    closer[7, 1] += nudge
+    change = tips_force(apart) - tips_force(closer)  # per 2·nudge of each tip
+    mode = -(change[0, 1] - change[7, 1]) / (2 * nudge) / (2 * mass)
+    assert mode == pytest.approx(2 * 48 * K_HAT, rel=1e-6)
+    assert effect.stability_modes()[0] == pytest.approx((2 * 48 * K_HAT, 0.0))
+
+
 @pytest.mark.parametrize("thickness", [0.004, 0.001, 0.0005])
 def test_unset_stiffness_stops_layers_closing_at_4_m_s_at_any_thickness(thickness):
     """Without a stiffness, k̂ = 10⁶·(4 mm / thickness)²: the penalty's energy over the whole
@@ -152,7 +208,8 @@ def test_unset_stiffness_stops_layers_closing_at_4_m_s_at_any_thickness(thicknes
         (SelfCollision, SelfCollisionSettings(thickness=thickness, stiffness=2e5))]).effects
     stops_4_m_s = fitted[0].stiffness
     assert 0.5 * stops_4_m_s * thickness ** 2 == pytest.approx(0.5 * 4.0 ** 2, rel=1e-12)
-    assert fitted[0].stability_modes()[0][0] == pytest.approx(4 * stops_4_m_s, rel=1e-12)
+    # two triangles: at most one at a vertex, two edges: a vertex on a vertex, 1 + 1 + 2·2 pairs
+    assert fitted[0].stability_modes()[0][0] == pytest.approx(2 * 6 * stops_4_m_s, rel=1e-12)
     chosen, given_step = TimeStep(1 / 60, 2, "auto"), fixed_time_step(1 / 60, 1 / 30)
     for effect, step, integrator, bound in ((fitted[0], chosen, "symplectic", math.inf),
                                             (fitted[1], given_step, "symplectic", 1e6),
@@ -177,15 +234,19 @@ def test_a_simulation_fits_the_unset_stiffness_to_its_step_before_its_kernels_re
 
 
 def test_a_given_explicit_step_is_split_until_the_penalty_is_stable():
-    """`hula-paper` (FB Euler at the paper's 2 ms) with self-collision: its penalty (10⁶ 1/s²,
-    four contacts on a particle) is unstable at 2 ms, where it stretched the skirt 42 % without
-    ever blowing up (docs/physics.md, "Time step"); the run splits the step below the friction
-    damper's bound, ωh ≤ 2(√2 − 1) at ω = √(4·10⁶), and keeps the 2 ms it was asked for."""
+    """`hula-paper` (FB Euler at the paper's 2 ms) with self-collision: its penalty (10⁶ 1/s²)
+    is unstable at 2 ms, where it stretched the skirt 42 % without ever blowing up
+    (docs/physics.md, "Time step"). The run splits the step below the bound of the stiffest
+    mode, a vertex on a vertex (48 pairs on its grid: 2·48·10⁶ 1/s²), whose frictions'
+    regularised dampers add to ζ = √96: FB Euler is stable for ωh ≤ 2(√(ζ² + 1) − ζ) (its
+    amplification matrix's trace and determinant); it keeps the 2 ms it was asked for."""
     simulation = Simulation.from_scene("hula-paper", ("effects.self_collision=true",))
     effect = next(e for e in simulation.effects if e.name == "self_collision")
     step = simulation.time_step
     assert effect.stiffness == 1e6 and step.requested == 0.002
-    assert step.stable_dt == pytest.approx(2 * (math.sqrt(2) - 1) / math.sqrt(4e6), rel=1e-6)
+    ratio = math.sqrt(96)
+    assert step.stable_dt == pytest.approx(2 * (math.sqrt(ratio ** 2 + 1) - ratio)
+                                           / math.sqrt(96e6), rel=1e-6)
     assert step.dt <= simulation.scene.simulation.safety * step.stable_dt * (1 + 1e-9)
 
 

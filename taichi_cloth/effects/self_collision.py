@@ -34,12 +34,11 @@ taken out) by half the padding since the last build.
 Gathered, no atomics on forces: each pair's force (and blocks) is computed once per evaluation,
 with each of its four particles' share weight; a particle sums its entries' shares in list
 order, so a run is bit-reproducible. The CPU only (``config.scene`` refuses a GPU arch: on CUDA
-these kernels did not finish compiling in 7 minutes); its loops over the list run on one thread,
-where a hand-off to a second costs more than it gains at these sizes.
-
-Implicit integrator: per-particle blocks of each pair (w²-weighted), the couplings between a
-pair's particles left out; tunnelling, the thickness bound and the measured cost: docs/physics.md.
-The stiffness when the scene gives none: ``effects/self_collision_stiffness.py``.
+these kernels did not finish compiling in 7 minutes); its loops run on one thread (a second
+costs more than it gains at these sizes). Implicit integrator: per-particle blocks of each pair
+(w²-weighted), the couplings between a pair's particles left out; tunnelling, the thickness
+bound, the stable step and the measured cost: docs/physics.md. The stiffness when the scene
+gives none, and the most pairs on one contact: ``effects/self_collision_stiffness.py``.
 """
 
 from dataclasses import dataclass
@@ -53,8 +52,8 @@ from taichi_cloth.effects.candidate_pairs import CandidatePairs
 from taichi_cloth.effects.penalty import normal_force_magnitude, penalty_terms
 from taichi_cloth.effects.piercing import intersections_around
 from taichi_cloth.effects.proximity import VERTEX_TRIANGLE, inside_within, pair_geometry
-from taichi_cloth.effects.self_collision_stiffness import (default_stiffness, fitted_stiffness,
-                                                           redo_stiffness)
+from taichi_cloth.effects.self_collision_stiffness import (
+    default_stiffness, fitted_stiffness, redo_stiffness, vertex_on_vertex_pairs)
 from taichi_cloth.effects.unstretch import unstretch
 from taichi_cloth.errors import InputError
 from taichi_cloth.settings import setting
@@ -62,10 +61,8 @@ from taichi_cloth.settings import setting
 PADDING = 1.0  # the list's padding in thicknesses: rebuilt after half of it is deformed
 SEPARATION = 0.25  # a crossed pair is put back this fraction of the thickness apart
 SEPARATION_SWEEPS = 4  # sweeps of the list that put crossed pairs back, at most, each step
-PATH_POINTS = 4  # points of a step's straight path at which each pair's side record is brought
-# up to date (``_sweep_pair``): 1/4, 1/2, 3/4 and the end (the points before it only for a pair
-# inside at the end)
-CONTACTS_PER_PARTICLE = 4  # the stiffness bound for dt = "auto": a vertex, corner and edge shares
+PATH_POINTS = 4  # points of a step's straight path where each pair's side record is brought up
+# to date (``_sweep_pair``): 1/4, 1/2, 3/4 and the end (the others only for a pair inside at it)
 
 
 @dataclass(frozen=True)
@@ -416,5 +413,8 @@ class SelfCollision(Effect):
         return self.stiffness != chosen
 
     def stability_modes(self) -> list[tuple[float, float]]:
-        """The penalty's mode, with up to ``CONTACTS_PER_PARTICLE`` contacts on one particle."""
-        return [(self.stiffness * CONTACTS_PER_PARTICLE, self.damping_ratio)]
+        """Two vertices resting on each other, n = ``vertex_on_vertex_pairs``: 2n·k̂, dashpots
+        at ζ·√(2n), frictions' regularised dampers (2n·2√k̂) at √(2n) (docs/physics.md)."""
+        n2 = 2 * vertex_on_vertex_pairs(self.model.garment.triangles, self.model.garment.edges)
+        stiffness = n2 * self.stiffness
+        return [(stiffness, self.damping_ratio * n2 ** 0.5), (stiffness, n2 ** 0.5)]

@@ -10,6 +10,8 @@ stiffens the penalty 4× a halving (``redo_stiffness``), k̂·dt² staying what 
 chosen for.
 """
 
+import numpy as np
+
 REFERENCE_SPEED = 4.0  # m/s: layers closing up to this fast are stopped (a hem twirled once a second)
 FIXED_STEP_STIFFNESS = 1e6  # 1/s²: the most for an explicit step given in seconds (not chosen
 # for more; 4 m/s at 4 mm)
@@ -41,3 +43,14 @@ def redo_stiffness(stiffness: float, halvings: int) -> float:
     """The stiffness [1/s²] of a frame redone by the tunnelling guard at the run's step over
     2^``halvings``: ``REDO_STIFFENING``^halvings times the run's."""
     return stiffness * REDO_STIFFENING ** halvings
+
+
+def vertex_on_vertex_pairs(triangles: np.ndarray, edges: np.ndarray) -> int:
+    """The most pairs that push on one contact, (T, 3) ``triangles`` and (E, 2) ``edges`` of
+    particle indices: a vertex p resting on a vertex q of another layer is within the thickness
+    of each triangle at q, q of each triangle at p, and each edge at p of each edge at q, all
+    along the same normal: T(p) + T(q) + E(p)·E(q) pairs (T, E: the triangles and edges at a
+    vertex; 6 + 6 + 36 = 48 on a regular grid), taken at the mesh's most."""
+    most_triangles = int(np.bincount(triangles.ravel()).max())
+    most_edges = int(np.bincount(edges.ravel()).max())
+    return 2 * most_triangles + most_edges ** 2
