@@ -415,6 +415,6 @@ class SelfCollision(Effect):
     def stability_modes(self) -> list[tuple[float, float]]:
         """Two vertices resting on each other, n = ``vertex_on_vertex_pairs``: 2n·k̂, dashpots
         at ζ·√(2n), frictions' regularised dampers (2n·2√k̂) at √(2n) (docs/physics.md)."""
-        n2 = 2 * vertex_on_vertex_pairs(self.model.garment.triangles, self.model.garment.edges)
-        stiffness = n2 * self.stiffness
-        return [(stiffness, self.damping_ratio * n2 ** 0.5), (stiffness, n2 ** 0.5)]
+        factor = 2 * vertex_on_vertex_pairs(self.model.garment.triangles, self.model.garment.edges)
+        stiffness = factor * self.stiffness
+        return [(stiffness, self.damping_ratio * factor ** 0.5), (stiffness, factor ** 0.5)]

@@ -8,6 +8,9 @@ Layers closing at v are stopped within the thickness h when the penalty's energy
 any step: the tunnelling guard, which redoes such a frame at a half, a quarter, ... of the step,
 stiffens the penalty 4× a halving (``redo_stiffness``), k̂·dt² staying what the run's step was
 chosen for.
+
+Also the most pairs that push on one contact (``vertex_on_vertex_pairs``), which sets the
+penalty's stiffest mode for an explicit step (``SelfCollision.stability_modes``).
 """
 
 import numpy as np
