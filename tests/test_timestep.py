@@ -9,7 +9,9 @@ import pytest
 
 from taichi_cloth.cloth.garment import build_garment
 from taichi_cloth.config.scene import load_scene
+from taichi_cloth.effects.penalty import ContactMode
 from taichi_cloth.errors import InputError, UnstableError
+from taichi_cloth.physics.integrators.stability import contact_step_limit, mode_step_limit
 from taichi_cloth.physics import simulation as simulation_module
 from taichi_cloth.physics.simulation import Simulation
 from taichi_cloth.physics.timestep import (IMPLICIT_PIN_TRAVEL, choose_time_step, fixed_time_step,
@@ -162,13 +164,29 @@ def test_auto_explicit_euler_with_rayleigh_damping_is_limited_by_the_damping_tim
     assert step.dt <= 0.8 * damping_time
 
 
+@pytest.mark.parametrize("contacts", [1, 2, 96])
+def test_contacts_on_one_coordinate_add_their_springs_and_dampers(contacts):
+    """n penalties on one coordinate, each k̂ = 10⁶ 1/s², a dashpot 2ζ√k̂ (ζ = 0.3) and a
+    friction damper 2√k̂: ẍ = −n·k̂·x − n·2ζ√k̂·ẋ across the normal, u̇ = −n·2√k̂·u along it.
+    ``ContactMode.oscillators`` gives the oscillators with exactly those rates, and the step
+    bound is the tighter of theirs."""
+    stiffness, ratio = 1e6, 0.3
+    normal, friction = ContactMode(stiffness, ratio, contacts).oscillators()
+    for (omega, zeta), damping_rate in ((normal, contacts * 2 * ratio * math.sqrt(stiffness)),
+                                       (friction, contacts * 2 * math.sqrt(stiffness))):
+        assert omega ** 2 == pytest.approx(contacts * stiffness, rel=1e-12)
+        assert 2 * zeta * omega == pytest.approx(damping_rate, rel=1e-12)
+    assert contact_step_limit("symplectic", [ContactMode(stiffness, ratio, contacts)]) == min(
+        mode_step_limit("symplectic", *normal), mode_step_limit("symplectic", *friction))
+
+
 def test_auto_step_also_respects_the_contact_modes():
     """A stiff penalty contact (k̂ = 1e6 1/s², ζ = 0.5) adds k̂ to ω_max² and two modes at
     ω = √k̂: its normal spring (ζ = 0.5, y ≤ 1.236) and its friction damper (ζ = 1,
     y ≤ 2(√2 − 1) = 0.828), which is the binding one."""
     omega, contact = 10.0, 1e6
     step = choose_time_step("auto", FRAME, "symplectic", damping_time=0.0,
-                            contact_modes=[(contact, 0.5)], safety=0.8, **one_spring(omega))
+                            contact_modes=[ContactMode(contact, 0.5)], safety=0.8, **one_spring(omega))
     assert omega ** 2 + contact <= step.omega_max ** 2 <= 1.1 * omega ** 2 + contact + 1e-6
     friction_limit = symplectic_limit(1.0) / math.sqrt(contact)
     assert friction_limit < symplectic_limit(0.5) / math.sqrt(contact)
@@ -251,8 +269,8 @@ def test_a_requested_step_is_split_until_the_bounding_modes_are_stable(integrato
     the request is kept, and the springs (ω = 10³ here, unstable for explicit Euler at any
     step) are not looked at. A request within the bound, and backward Euler, are not split."""
     stiffness, safety = 4e6, 0.8
-    modes = dict(damping_time=0.0, contact_modes=[(stiffness, 0.5)], safety=safety,
-                 bounding_modes=[(stiffness, 0.5)], **one_spring(1e3))
+    modes = dict(damping_time=0.0, contact_modes=[ContactMode(stiffness, 0.5)], safety=safety,
+                 bounding_modes=[ContactMode(stiffness, 0.5)], **one_spring(1e3))
     step = choose_time_step(0.002, FRAME, integrator, **modes)
     bound = limit / math.sqrt(stiffness)
     assert step.stable_dt == pytest.approx(bound, rel=1e-6)
@@ -272,8 +290,8 @@ def test_an_undamped_bounding_penalty_under_explicit_euler_is_refused():
     """Explicit Euler is stable at no step for an undamped mode: a one-line error naming the
     damping key, not a step of zero."""
     with pytest.raises(InputError, match="effects.self_collision.damping"):
-        choose_time_step(0.002, FRAME, "euler", damping_time=0.0, contact_modes=[(1e6, 0.0)],
-                         safety=0.8, bounding_modes=[(1e6, 0.0)], **one_spring(10.0))
+        choose_time_step(0.002, FRAME, "euler", damping_time=0.0, contact_modes=[ContactMode(1e6, 0.0)],
+                         safety=0.8, bounding_modes=[ContactMode(1e6, 0.0)], **one_spring(10.0))
 
 
 @pytest.mark.parametrize("integrator, advised, not_advised", [

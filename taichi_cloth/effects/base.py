@@ -48,10 +48,10 @@ Genesis' ``force_fields.py``). What an effect declares:
   face given by ``face_air(face_velocity)`` (on components) and the factor ``face_factor``
   (½·ρ·C_d [kg/m³]): on a packed grid cloth the SIMD pass then computes each face once, in
   lanes, and each particle reads back its six (drag).
-- ``stability_modes()``: the (k̂ [1/s²], ζ) of each stiff mode it adds, for ``dt = "auto"``,
-  and with ``bounds_given_step`` for a step in seconds too (an explicit one split until they
-  are stable: self-collision's penalty, whose instability stays within its band, unseen by the
-  frame guard);
+- ``stability_modes()``: the ``penalty.ContactMode`` (k̂ [1/s²], ζ, how many add up) of each
+  stiff mode it adds, for ``dt = "auto"``, and with ``bounds_given_step`` for a step in seconds
+  too (an explicit one split until they are stable: self-collision's penalty, whose
+  instability stays within its band, unseen by the frame guard);
   ``fit_time_step(time_step, integrator)``: the step then chosen (self-collision's default
   stiffness); ``follow_redo(halvings)``: a frame redone by the tunnelling guard at dt/2^halvings
   (0: the run's step again), which a penalty whose stopping speed the step allows may stiffen
@@ -164,8 +164,8 @@ class Effect:
         here."""
         return False
 
-    def stability_modes(self) -> list[tuple[float, float]]:
-        """(k̂ [1/s²], ζ) of the stiff modes this effect adds: none here."""
+    def stability_modes(self) -> list:
+        """The ``penalty.ContactMode`` of each stiff mode this effect adds: none here."""
         return []
 
     def potential_energy(self, x: np.ndarray, mass: np.ndarray) -> float:

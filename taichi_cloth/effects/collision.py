@@ -27,8 +27,9 @@ import taichi as ti
 
 from taichi_cloth.effects.base import Effect, EffectContext
 from taichi_cloth.effects.near_masks import NearMasks
-from taichi_cloth.effects.penalty import (PenaltySettings, capsule_penetration_depths,
-                                          closest_on_segment, penalty_terms)
+from taichi_cloth.effects.penalty import (ContactMode, PenaltySettings,
+                                          capsule_penetration_depths, closest_on_segment,
+                                          penalty_terms)
 from taichi_cloth.gather import incidence_lists
 from taichi_cloth.settings import setting
 
@@ -331,10 +332,10 @@ class CapsuleContact(NearMasks, Effect):
                         if inward < 0:
                             v[i_p] -= inward * normal
 
-    def stability_modes(self) -> list[tuple[float, float]]:
+    def stability_modes(self) -> list[ContactMode]:
         """The penalty's mode, its stiffness raised by the surface samples' share (module
         docstring)."""
-        return [(self.stiffness * self.stiffness_factor, self.damping_ratio)]
+        return [ContactMode(self.stiffness * self.stiffness_factor, self.damping_ratio)]
 
     def penetration_depths(self, points: np.ndarray) -> np.ndarray:
         """Metres inside the deepest capsule (without the margin) at the end of the frame."""

@@ -6,7 +6,8 @@ import numpy as np
 import taichi as ti
 
 from taichi_cloth.effects.base import Effect
-from taichi_cloth.effects.penalty import PenaltySettings, penalty_blocks, penalty_force
+from taichi_cloth.effects.penalty import (ContactMode, PenaltySettings, penalty_blocks,
+                                          penalty_force)
 from taichi_cloth.settings import setting
 
 
@@ -56,5 +57,5 @@ class GroundContact(Effect):
                               ti.Matrix.zero(real, 3, 3), real(self.stiffness),
                               real(self.damping_ratio), real(self.friction), real, True)
 
-    def stability_modes(self) -> list[tuple[float, float]]:
-        return [(self.stiffness, self.damping_ratio)]
+    def stability_modes(self) -> list[ContactMode]:
+        return [ContactMode(self.stiffness, self.damping_ratio)]

@@ -20,11 +20,36 @@ velocity of a capsule is interpolated along its axis from the endpoint velocitie
 """
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 import taichi as ti
 
 from taichi_cloth.settings import setting
+
+
+class ContactMode(NamedTuple):
+    """A penalty contact's stiff mode for ``dt = "auto"`` and an explicit step's split: each of
+    the n = ``contacts`` penalties on one coordinate has stiffness k̂ [1/s²] (per unit mass), a
+    dashpot at damping ratio ζ and regularised friction, a damper of rate 2√k̂ across the normal
+    (module docstring; docs/physics.md, "Time step"). They add up: n springs make the normal
+    mode ω² = n·k̂, n dashpots of rate 2ζ√k̂ give it the ratio ζ·√n, and n friction dampers, of
+    rate 2n·√k̂ together, are the mode ω² = n·k̂ at ratio √n. A particle against a fixed
+    surface is n = 1; a pair between two free particles of equal mass pushes on their relative
+    coordinate as two contacts."""
+    stiffness: float
+    damping_ratio: float
+    contacts: int = 1
+
+    @property
+    def summed_stiffness(self) -> float:
+        """n·k̂ [1/s²], the normal mode's ω²."""
+        return self.contacts * self.stiffness
+
+    def oscillators(self) -> tuple[tuple[float, float], tuple[float, float]]:
+        """(ω [rad/s], ζ) of the normal mode and of the friction dampers' mode."""
+        omega, root = np.sqrt(self.summed_stiffness), np.sqrt(self.contacts)
+        return (omega, self.damping_ratio * root), (omega, root)
 
 
 @dataclass(frozen=True)

@@ -49,7 +49,7 @@ import taichi as ti
 from taichi_cloth.effects import crossing_history
 from taichi_cloth.effects.base import Effect, EffectContext
 from taichi_cloth.effects.candidate_pairs import CandidatePairs
-from taichi_cloth.effects.penalty import normal_force_magnitude, penalty_terms
+from taichi_cloth.effects.penalty import ContactMode, normal_force_magnitude, penalty_terms
 from taichi_cloth.effects.piercing import intersections_around
 from taichi_cloth.effects.proximity import VERTEX_TRIANGLE, inside_within, pair_geometry
 from taichi_cloth.effects.self_collision_stiffness import (
@@ -412,9 +412,8 @@ class SelfCollision(Effect):
                                               time_step.requested)
         return self.stiffness != chosen
 
-    def stability_modes(self) -> list[tuple[float, float]]:
-        """Two vertices resting on each other, n = ``vertex_on_vertex_pairs``: 2n·k̂, dashpots
-        at ζ·√(2n), frictions' regularised dampers (2n·2√k̂) at √(2n) (docs/physics.md)."""
-        factor = 2 * vertex_on_vertex_pairs(self.model.garment.triangles, self.model.garment.edges)
-        stiffness = factor * self.stiffness
-        return [(stiffness, self.damping_ratio * factor ** 0.5), (stiffness, factor ** 0.5)]
+    def stability_modes(self) -> list[ContactMode]:
+        """Two vertices resting on each other, n = ``vertex_on_vertex_pairs`` pairs pushing
+        their relative coordinate as 2n contacts (docs/physics.md, "Self-collision")."""
+        pairs = vertex_on_vertex_pairs(self.model.garment.triangles, self.model.garment.edges)
+        return [ContactMode(self.stiffness, self.damping_ratio, contacts=2 * pairs)]

@@ -115,10 +115,10 @@ def choose_time_step(requested, frame_duration: float, integrator: str, position
                      mass, free, damping_time: float, contact_modes, safety: float,
                      coupled=(), pin_drive=lambda: (0.0, 0.0), bounding_modes=()) -> TimeStep:
     """The substep for a frame of ``frame_duration`` [s]; ``requested`` is seconds or "auto".
-    contact_modes: (k̂ [1/s²], ζ) of each declared contact (collision, ground); coupled: the
-    effects whose Hessian adds to the springs' (``highest_frequency``); pin_drive: a function
-    giving (a_pin [m/s²], ℓ_pin [m]) (module docstring), called for backward Euler's auto
-    step; bounding_modes: the contact modes that bound a step in seconds too (an explicit
+    contact_modes: the ``ContactMode`` of each declared contact (collision, ground,
+    self-collision); coupled: the effects whose Hessian adds to the springs'
+    (``highest_frequency``); pin_drive: a function giving (a_pin [m/s²], ℓ_pin [m]) (module
+    docstring), called for backward Euler's auto step; bounding_modes: the contact modes that bound a step in seconds too (an explicit
     integrator's step split until they are stable: self-collision's penalty, whose instability
     stays within its band and so never blows up where the frame guard would see it)."""
     if requested != "auto":
@@ -131,7 +131,7 @@ def choose_time_step(requested, frame_duration: float, integrator: str, position
                                  f"another integrator")
         return fixed_time_step(requested, frame_duration, stable, safety)
     omega_spring = highest_frequency(positions, ends, stiffness, mass, free, coupled=coupled)
-    contact_stiffness = max((k for k, _ in contact_modes), default=0.0)
+    contact_stiffness = max((mode.summed_stiffness for mode in contact_modes), default=0.0)
     omega_max = math.sqrt(omega_spring ** 2 + contact_stiffness)
     if integrator == "implicit":
         longest = IMPLICIT_FRAME_FRACTION * frame_duration

@@ -81,17 +81,16 @@ def mode_step_limit(method: str, omega: float, zeta: float, h_max: float = 1e3) 
 def largest_stable_step(method: str, omega_max: float, damping_time: float,
                         contact_modes=()) -> float:
     """Largest stable h [s] for all spring modes up to ω_max [rad/s] with Rayleigh damping time
-    β [s] (ζ = β·ω/2), and for each contact in ``contact_modes`` (``contact_step_limit``). 0
-    when no step is stable (undamped explicit Euler)."""
+    β [s] (ζ = β·ω/2), and for each contact mode in ``contact_modes``
+    (``contact_step_limit``). 0 when no step is stable (undamped explicit Euler)."""
     limits = [mode_step_limit(method, omega, 0.5 * damping_time * omega)
               for omega in np.geomspace(omega_max * 1e-3, omega_max, 25)]
     return float(min(limits + [contact_step_limit(method, contact_modes)]))
 
 
 def contact_step_limit(method: str, contact_modes) -> float:
-    """Largest stable h [s] for each contact in ``contact_modes``, (k̂ [1/s²], ζ): its normal
-    mode (ω = √k̂, ζ) and its regularised friction, a damper of rate 2√k̂ (the mode ω = √k̂,
-    ζ = 1); inf without contacts."""
-    limits = [mode_step_limit(method, np.sqrt(stiffness), ratio)
-              for stiffness, damping_ratio in contact_modes for ratio in (damping_ratio, 1.0)]
+    """Largest stable h [s] for each ``effects.penalty.ContactMode`` in ``contact_modes``: its
+    normal mode and its friction dampers' (``ContactMode.oscillators``); inf without contacts."""
+    limits = [mode_step_limit(method, omega, ratio)
+              for mode in contact_modes for omega, ratio in mode.oscillators()]
     return float(min(limits, default=np.inf))
