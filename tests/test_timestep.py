@@ -294,17 +294,21 @@ def test_an_undamped_bounding_penalty_under_explicit_euler_is_refused():
                          safety=0.8, bounding_modes=[ContactMode(1e6, 0.0)], **one_spring(10.0))
 
 
-@pytest.mark.parametrize("integrator, advised, not_advised", [
-    ("implicit", "lower simulation.dt", "use integrator"),
-    ("symplectic", "use integrator = \"implicit\"", "[effects.damping]"),
+@pytest.mark.parametrize("integrator, dt, advised, not_advised", [
+    ("implicit", "0.01", "lower simulation.dt or set it to \"auto\"", "use integrator"),
+    ("implicit", "auto", "set simulation.dt below the 0.0167 s that \"auto\" took",
+     "set it to \"auto\""),
+    ("symplectic", "auto", "use integrator = \"implicit\"", "[effects.damping]"),
 ])
-def test_a_frame_past_the_guard_advises_what_the_integrator_can_change(integrator, advised,
+def test_a_frame_past_the_guard_advises_what_the_integrator_can_change(integrator, dt, advised,
                                                                         not_advised):
     """A frame past ``max_speed`` (set below any speed but the start's, 0) with no retries left
-    ends the run in one ``UnstableError`` that names the frame and advises a smaller step, and
-    the implicit integrator only to a run that does not use it already."""
+    ends the run in one ``UnstableError`` that names the frame and advises a smaller step (below
+    the one "auto" chose, when it did), and the implicit integrator only to a run that does not
+    use it already."""
     scene = load_scene("sheet", ("cloth.resolution=[6, 6]", f"simulation.integrator={integrator}",
-                                 "simulation.max_speed=1e-4", "simulation.max_retries=0"))
+                                 f"simulation.dt={dt}", "simulation.max_speed=1e-4",
+                                 "simulation.max_retries=0"))
     with pytest.raises(UnstableError) as failure:
         Simulation(scene).run(1)
     message = str(failure.value)
