@@ -186,7 +186,8 @@ def test_auto_step_also_respects_the_contact_modes():
     y ≤ 2(√2 − 1) = 0.828), which is the binding one."""
     omega, contact = 10.0, 1e6
     step = choose_time_step("auto", FRAME, "symplectic", damping_time=0.0,
-                            contact_modes=[ContactMode(contact, 0.5)], safety=0.8, **one_spring(omega))
+                            contact_modes=[ContactMode(contact, 0.5)], safety=0.8,
+                            **one_spring(omega))
     assert omega ** 2 + contact <= step.omega_max ** 2 <= 1.1 * omega ** 2 + contact + 1e-6
     friction_limit = symplectic_limit(1.0) / math.sqrt(contact)
     assert friction_limit < symplectic_limit(0.5) / math.sqrt(contact)
@@ -290,8 +291,9 @@ def test_an_undamped_bounding_penalty_under_explicit_euler_is_refused():
     """Explicit Euler is stable at no step for an undamped mode: a one-line error naming the
     damping key, not a step of zero."""
     with pytest.raises(InputError, match="effects.self_collision.damping"):
-        choose_time_step(0.002, FRAME, "euler", damping_time=0.0, contact_modes=[ContactMode(1e6, 0.0)],
-                         safety=0.8, bounding_modes=[ContactMode(1e6, 0.0)], **one_spring(10.0))
+        undamped = [ContactMode(1e6, 0.0)]
+        choose_time_step(0.002, FRAME, "euler", damping_time=0.0, contact_modes=undamped,
+                         safety=0.8, bounding_modes=undamped, **one_spring(10.0))
 
 
 @pytest.mark.parametrize("integrator, dt, advised, not_advised", [

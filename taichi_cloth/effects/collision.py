@@ -333,9 +333,10 @@ class CapsuleContact(NearMasks, Effect):
                             v[i_p] -= inward * normal
 
     def stability_modes(self) -> list[ContactMode]:
-        """The penalty's mode, its stiffness raised by the surface samples' share (module
-        docstring)."""
-        return [ContactMode(self.stiffness * self.stiffness_factor, self.damping_ratio)]
+        """The penalty's mode: a particle's own sample and its share of its edges' and
+        triangles' add up to ``stiffness_factor`` contacts, their dashpots and friction dampers
+        with their springs (module docstring)."""
+        return [ContactMode(self.stiffness, self.damping_ratio, contacts=self.stiffness_factor)]
 
     def penetration_depths(self, points: np.ndarray) -> np.ndarray:
         """Metres inside the deepest capsule (without the margin) at the end of the frame."""

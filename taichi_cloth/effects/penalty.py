@@ -35,11 +35,12 @@ class ContactMode(NamedTuple):
     (module docstring; docs/physics.md, "Time step"). They add up: n springs make the normal
     mode ω² = n·k̂, n dashpots of rate 2ζ√k̂ give it the ratio ζ·√n, and n friction dampers, of
     rate 2n·√k̂ together, are the mode ω² = n·k̂ at ratio √n. A particle against a fixed
-    surface is n = 1; a pair between two free particles of equal mass pushes on their relative
-    coordinate as two contacts."""
+    surface is n = 1; a particle with its share of the contact samples around it is their
+    weights' sum (``collision``: up to ~6); a pair between two free particles of equal mass
+    pushes on their relative coordinate as two contacts."""
     stiffness: float
     damping_ratio: float
-    contacts: int = 1
+    contacts: float = 1.0
 
     @property
     def summed_stiffness(self) -> float:

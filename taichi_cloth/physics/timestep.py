@@ -115,12 +115,13 @@ def choose_time_step(requested, frame_duration: float, integrator: str, position
                      mass, free, damping_time: float, contact_modes, safety: float,
                      coupled=(), pin_drive=lambda: (0.0, 0.0), bounding_modes=()) -> TimeStep:
     """The substep for a frame of ``frame_duration`` [s]; ``requested`` is seconds or "auto".
-    contact_modes: the ``ContactMode`` of each declared contact (collision, ground,
-    self-collision); coupled: the effects whose Hessian adds to the springs'
+    contact_modes: the ``effects.penalty.ContactMode`` of each declared contact (collision,
+    ground, self-collision); coupled: the effects whose Hessian adds to the springs'
     (``highest_frequency``); pin_drive: a function giving (a_pin [m/s²], ℓ_pin [m]) (module
-    docstring), called for backward Euler's auto step; bounding_modes: the contact modes that bound a step in seconds too (an explicit
-    integrator's step split until they are stable: self-collision's penalty, whose instability
-    stays within its band and so never blows up where the frame guard would see it)."""
+    docstring), called for backward Euler's auto step; bounding_modes: the contact modes that
+    bound a step in seconds too (an explicit integrator's step split until they are stable:
+    self-collision's penalty, whose instability stays within its band and so never blows up
+    where the frame guard would see it)."""
     if requested != "auto":
         stable = None
         if integrator != "implicit" and bounding_modes:
