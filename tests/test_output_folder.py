@@ -129,6 +129,18 @@ def test_a_run_past_the_machine_or_the_time_bound_is_refused_before_the_work(arg
     assert not out.exists()
 
 
+@pytest.mark.parametrize("command, test", [("simulate", "drape"), ("render", "cantilever")])
+def test_a_lab_specimen_is_sent_to_fabric_test(command, test, tmp_path, capsys):
+    """The lab's scenes step 0.5 s at a time, Newton steps from rest that ``fabric-test``
+    takes: ``simulate`` or ``render`` of one is a one-line error naming that command (it used to
+    blow up in its first frame, exit 3), and writes nothing."""
+    out = tmp_path / "out"
+    code, error = run_main([command, f"lab/{test}", "--out", str(out)], capsys)
+    assert code == 2 and len(error.splitlines()) == 1
+    assert f"lab/{test}" in error and f"fabric-test {test}" in error
+    assert not out.exists()
+
+
 def run_main(argv, capsys) -> tuple[int, str]:
     try:
         code = cli.main(argv)

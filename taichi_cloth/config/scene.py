@@ -28,6 +28,8 @@ from taichi_cloth.settings import SourceContext, build_table, numbers_in
 # The shipped scenes: the repository's top-level scenes/ (taichi_cloth/scenes links to it, and an
 # installed package carries the files there: pyproject.toml)
 SCENES_DIR = (Path(__file__).parents[1] / "scenes").resolve()
+LAB_SCENES = SCENES_DIR / "lab"  # the textile lab's specimens, run by ``fabric-test``
+
 
 @dataclass(frozen=True)
 class Scene:

@@ -21,13 +21,12 @@ from pathlib import Path
 import numpy as np
 
 from taichi_cloth.config.materials import PRESETS, STANDARD_GRAVITY
-from taichi_cloth.config.scene import SCENES_DIR, load_scene, resolve_scene_path
+from taichi_cloth.config.scene import LAB_SCENES, load_scene, resolve_scene_path
 from taichi_cloth.errors import InputError
 from taichi_cloth.output.files import write_csv
 from taichi_cloth.physics.metrics import RunRecord
 from taichi_cloth.physics.simulation import Simulation
 
-LAB_SCENES = SCENES_DIR / "lab"
 MOVE_TOLERANCE = 1e-9  # m per step: at rest
 RESIDUAL_TOLERANCE = 1e-4  # unbalanced force over the particle's weight
 MAX_SETTLE_STEPS = 1000  # denim's drape slides over the plate's edge: ~500 (docs/fabric-tests.md)
