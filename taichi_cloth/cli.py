@@ -11,8 +11,9 @@ from pathlib import Path
 import numpy as np
 
 from taichi_cloth.config.materials import PRESETS
-from taichi_cloth.config.scene import (LAB_SCENES, SCENES_DIR, arch_override, load_scene,
-                                       resolved_document, shipped_scene_names)
+from taichi_cloth.config.scene import (SCENES_DIR, arch_override, load_scene,
+                                       refuse_lab_specimen, resolved_document,
+                                       shipped_scene_names)
 from taichi_cloth.config.tables import MESH_FORMATS
 from taichi_cloth.errors import InputError, UnstableError
 from taichi_cloth.flags import choice_list
@@ -232,15 +233,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def prepare_scene(scene_name: str, overrides: list[str], frames: int | None, arch: str | None):
-    """Load the scene with the common flags applied; a textile lab specimen is refused (its
-    steps of 0.5 s are Newton steps from rest, which ``fabric-test`` takes: run frame by frame
-    as a dynamic scene it blows up)."""
+    """Load the scene with the common flags applied (not a textile lab specimen:
+    ``refuse_lab_specimen``)."""
+    refuse_lab_specimen(scene_name)
     extra, flags = arch_override(overrides, arch)
     scene = load_scene(scene_name, tuple(extra), flags)
-    path = Path(scene.path).resolve()
-    if path.parent == LAB_SCENES.resolve():
-        raise InputError(f"{scene_name}: a textile lab specimen, brought to rest by "
-                         f"`fabric-test {path.stem}`, not simulated frame by frame")
     if frames is not None and frames < 1:
         raise InputError(f"--frames {frames}: must be at least 1")
     return scene, frames if frames is not None else scene.frame_count

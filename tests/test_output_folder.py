@@ -115,6 +115,8 @@ def test_a_scene_named_like_a_path_writes_under_output(tmp_path, monkeypatch):
     (["simulate", "hula-paper", "--set", "simulation.dt=1e-9"],
      ["simulation.dt", "h", "--max-hours"]),
     (["simulate", "sheet", "--max-hours", "nan"], ["--max-hours"]),
+    (["simulate", "sheet", "--max-hours", "1e-6"],  # FB Euler, "auto": its longest stable step
+     ["simulation.dt", "use integrator = \"implicit\"", "--max-hours 1 "]),
 ])
 def test_a_run_past_the_machine_or_the_time_bound_is_refused_before_the_work(argv, words,
                                                                              tmp_path, capsys):
@@ -129,13 +131,18 @@ def test_a_run_past_the_machine_or_the_time_bound_is_refused_before_the_work(arg
     assert not out.exists()
 
 
-@pytest.mark.parametrize("command, test", [("simulate", "drape"), ("render", "cantilever")])
-def test_a_lab_specimen_is_sent_to_fabric_test(command, test, tmp_path, capsys):
+@pytest.mark.parametrize("argv, test", [
+    (["simulate", "lab/drape"], "drape"), (["render", "lab/cantilever"], "cantilever"),
+    (["compare", "lab/drape"], "drape"),
+    (["sweep", "lab/cantilever", "--grid", "cloth.material=silk,denim"], "cantilever"),
+    (["bench", "--scene", "lab/drape"], "drape"),
+])
+def test_a_lab_specimen_is_sent_to_fabric_test(argv, test, tmp_path, capsys):
     """The lab's scenes step 0.5 s at a time, Newton steps from rest that ``fabric-test``
-    takes: ``simulate`` or ``render`` of one is a one-line error naming that command (it used to
-    blow up in its first frame, exit 3), and writes nothing."""
+    takes: any command that would run one frame by frame refuses it in a one-line error naming
+    that command (``simulate`` blew up in its first frame, exit 3), and writes nothing."""
     out = tmp_path / "out"
-    code, error = run_main([command, f"lab/{test}", "--out", str(out)], capsys)
+    code, error = run_main(argv + ([] if argv[0] == "bench" else ["--out", str(out)]), capsys)
     assert code == 2 and len(error.splitlines()) == 1
     assert f"lab/{test}" in error and f"fabric-test {test}" in error
     assert not out.exists()

@@ -11,8 +11,8 @@ from taichi_cloth.cloth.garment import build_garment
 from taichi_cloth.config.scene import load_scene
 from taichi_cloth.effects.penalty import ContactMode
 from taichi_cloth.errors import InputError, UnstableError
-from taichi_cloth.physics.integrators.stability import contact_step_limit, mode_step_limit
 from taichi_cloth.physics import simulation as simulation_module
+from taichi_cloth.physics.integrators.stability import contact_step_limit
 from taichi_cloth.physics.simulation import Simulation
 from taichi_cloth.physics.timestep import (IMPLICIT_PIN_TRAVEL, choose_time_step, fixed_time_step,
                                           highest_frequency)
@@ -169,15 +169,17 @@ def test_contacts_on_one_coordinate_add_their_springs_and_dampers(contacts):
     """n penalties on one coordinate, each k̂ = 10⁶ 1/s², a dashpot 2ζ√k̂ (ζ = 0.3) and a
     friction damper 2√k̂: ẍ = −n·k̂·x − n·2ζ√k̂·ẋ across the normal, u̇ = −n·2√k̂·u along it.
     ``ContactMode.oscillators`` gives the oscillators with exactly those rates, and the step
-    bound is the tighter of theirs."""
+    bound is the tighter of theirs: for FB Euler the friction's (ζ = √n above ζ·√n), ωh ≤
+    2(√(n + 1) − √n) at ω = √(n·k̂) (``symplectic_limit``)."""
     stiffness, ratio = 1e6, 0.3
     normal, friction = ContactMode(stiffness, ratio, contacts).oscillators()
     for (omega, zeta), damping_rate in ((normal, contacts * 2 * ratio * math.sqrt(stiffness)),
                                        (friction, contacts * 2 * math.sqrt(stiffness))):
         assert omega ** 2 == pytest.approx(contacts * stiffness, rel=1e-12)
         assert 2 * zeta * omega == pytest.approx(damping_rate, rel=1e-12)
-    assert contact_step_limit("symplectic", [ContactMode(stiffness, ratio, contacts)]) == min(
-        mode_step_limit("symplectic", *normal), mode_step_limit("symplectic", *friction))
+    bound = contact_step_limit("symplectic", [ContactMode(stiffness, ratio, contacts)])
+    assert bound == pytest.approx(symplectic_limit(math.sqrt(contacts))
+                                  / math.sqrt(contacts * stiffness), rel=1e-6)
 
 
 def test_auto_step_also_respects_the_contact_modes():
@@ -296,21 +298,21 @@ def test_an_undamped_bounding_penalty_under_explicit_euler_is_refused():
                          safety=0.8, bounding_modes=undamped, **one_spring(10.0))
 
 
-@pytest.mark.parametrize("integrator, dt, advised, not_advised", [
-    ("implicit", "0.01", "lower simulation.dt or set it to \"auto\"", "use integrator"),
-    ("implicit", "auto", "set simulation.dt below the 0.0167 s that \"auto\" took",
-     "set it to \"auto\""),
-    ("symplectic", "auto", "use integrator = \"implicit\"", "[effects.damping]"),
+@pytest.mark.parametrize("integrator, dt, retries, advised, not_advised", [
+    ("implicit", "0.01", 0, "lower simulation.dt or set it to \"auto\"", "use integrator"),
+    ("implicit", "auto", 0, "set simulation.dt below 0.0167 s", "set it to \"auto\""),
+    ("implicit", "auto", 1, "set simulation.dt below 0.00833 s", "set it to \"auto\""),
+    ("symplectic", "auto", 0, "use integrator = \"implicit\"", "[effects.damping]"),
 ])
-def test_a_frame_past_the_guard_advises_what_the_integrator_can_change(integrator, dt, advised,
-                                                                        not_advised):
+def test_a_frame_past_the_guard_advises_what_the_integrator_can_change(integrator, dt, retries,
+                                                                        advised, not_advised):
     """A frame past ``max_speed`` (set below any speed but the start's, 0) with no retries left
     ends the run in one ``UnstableError`` that names the frame and advises a smaller step (below
-    the one "auto" chose, when it did), and the implicit integrator only to a run that does not
-    use it already."""
+    the last one tried, when "auto" chose it: backward Euler's half frame, halved once by a
+    retry), and the implicit integrator only to a run that does not use it already."""
     scene = load_scene("sheet", ("cloth.resolution=[6, 6]", f"simulation.integrator={integrator}",
                                  f"simulation.dt={dt}", "simulation.max_speed=1e-4",
-                                 "simulation.max_retries=0"))
+                                 f"simulation.max_retries={retries}"))
     with pytest.raises(UnstableError) as failure:
         Simulation(scene).run(1)
     message = str(failure.value)

@@ -173,6 +173,16 @@ def load_scene(name_or_path: str, overrides: tuple[str, ...] = (),
     return scene_from_document(path, raw, overridden)
 
 
+def refuse_lab_specimen(name_or_path: str) -> None:
+    """``InputError`` for a scene of ``LAB_SCENES``: the textile lab's specimens step 0.5 s at a
+    time, Newton steps from rest that ``fabric-test`` takes; run frame by frame (``simulate``,
+    ``render``, ``compare``, ``sweep``, ``bench``) they blow up in their first frame."""
+    path = resolve_scene_path(name_or_path).resolve()
+    if path.parent == LAB_SCENES:
+        raise InputError(f"{name_or_path}: a textile lab specimen, brought to rest by "
+                         f"`fabric-test {path.stem}`, not simulated frame by frame")
+
+
 def arch_override(overrides, arch: str | None) -> tuple[list[str], dict[str, str]]:
     """The --set overrides with --arch as one more (``simulation.arch``), and the flags to name
     in its errors (``load_scene``)."""

@@ -81,6 +81,8 @@ from typing import Any
 import numpy as np
 import taichi as ti
 
+from taichi_cloth.effects.penalty import ContactMode
+
 
 @dataclass(frozen=True)
 class EffectContext:
@@ -164,7 +166,7 @@ class Effect:
         here."""
         return False
 
-    def stability_modes(self) -> list:
+    def stability_modes(self) -> list[ContactMode]:
         """The ``penalty.ContactMode`` of each stiff mode this effect adds: none here."""
         return []
 

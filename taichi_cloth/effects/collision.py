@@ -17,8 +17,9 @@ once in the implicit step"). For the implicit solver each particle's block keeps
 w_a²·∂F_s/∂p of its samples and drops the couplings between the particles of a sample (a
 documented approximation: the Newton step stays a descent step, the contact stiffness on the
 diagonal is exact). With samples, a particle feels the contact stiffness of its own and of its
-samples: Gershgorin bounds the mode by k̂·Σ w_a·m_s/m_a (its own sample: 1), which
-``stability_modes`` reports for ``dt = "auto"``."""
+samples: Gershgorin bounds the mode by k̂·Σ w_a·m_s/m_a (its own sample: 1), and the samples'
+dashpots and friction dampers, each in proportion to its mass as its spring is, add up in the
+same proportion: ``stability_modes`` reports Σ w_a·m_s/m_a contacts for ``dt = "auto"``."""
 
 from dataclasses import dataclass
 
@@ -113,7 +114,8 @@ class CapsuleContact(NearMasks, Effect):
         share = np.zeros(n)  # Σ w_a·m_s over a particle's samples, its own (m_a) included
         np.add.at(share, corners.ravel(), (weights * sample_mass[:, None]).ravel())
         free = mass > 0
-        self.stiffness_factor = float(np.max(share[free] / mass[free])) if free.any() else 1.0
+        # the contacts a particle's own penalty and its samples' add up to at most (Gershgorin)
+        self.sample_contacts = float(np.max(share[free] / mass[free])) if free.any() else 1.0
         self.sample_count = len(corners)
         rest = np.linalg.norm(np.diff(model.garment.positions[model.garment.edges], axis=1),
                               axis=2)
@@ -334,9 +336,9 @@ class CapsuleContact(NearMasks, Effect):
 
     def stability_modes(self) -> list[ContactMode]:
         """The penalty's mode: a particle's own sample and its share of its edges' and
-        triangles' add up to ``stiffness_factor`` contacts, their dashpots and friction dampers
+        triangles' add up to ``sample_contacts`` contacts, their dashpots and friction dampers
         with their springs (module docstring)."""
-        return [ContactMode(self.stiffness, self.damping_ratio, contacts=self.stiffness_factor)]
+        return [ContactMode(self.stiffness, self.damping_ratio, contacts=self.sample_contacts)]
 
     def penetration_depths(self, points: np.ndarray) -> np.ndarray:
         """Metres inside the deepest capsule (without the margin) at the end of the frame."""

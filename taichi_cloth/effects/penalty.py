@@ -31,13 +31,14 @@ from taichi_cloth.settings import setting
 class ContactMode(NamedTuple):
     """A penalty contact's stiff mode for ``dt = "auto"`` and an explicit step's split: each of
     the n = ``contacts`` penalties on one coordinate has stiffness k̂ [1/s²] (per unit mass), a
-    dashpot at damping ratio ζ and regularised friction, a damper of rate 2√k̂ across the normal
-    (module docstring; docs/physics.md, "Time step"). They add up: n springs make the normal
-    mode ω² = n·k̂, n dashpots of rate 2ζ√k̂ give it the ratio ζ·√n, and n friction dampers, of
-    rate 2n·√k̂ together, are the mode ω² = n·k̂ at ratio √n. A particle against a fixed
-    surface is n = 1; a particle with its share of the contact samples around it is their
-    weights' sum (``collision``: up to ~6); a pair between two free particles of equal mass
-    pushes on their relative coordinate as two contacts."""
+    dashpot at damping ratio ζ and regularised friction, a damper of rate 2√k̂ in the tangent
+    plane (module docstring; docs/physics.md, "Time step"). They add up: n springs make the
+    normal mode ω² = n·k̂, n dashpots of rate 2ζ√k̂ give it the ratio ζ·√n, and n friction
+    dampers, of rate 2n·√k̂ together, are the mode ω² = n·k̂ at ratio √n. A particle against a
+    fixed surface is n = 1; a particle with its shares of the contact samples around it is
+    n = Σ w_a·m_s/m_a (``collision``: 6 inside a uniform grid); a pair between two free
+    particles of equal mass pushes on their relative coordinate as two contacts. n need not be
+    a whole number."""
     stiffness: float
     damping_ratio: float
     contacts: float = 1.0

@@ -74,8 +74,13 @@ def check_time(simulation, frame_count: int, limits: RunLimits) -> None:
     substeps = frame_count * step.substeps_per_frame + math.ceil(settle / step.dt)
     seconds = substeps * simulation.model.particle_count / FASTEST_RATE
     if seconds > limits.max_hours * 3600:
+        longer = "raise simulation.dt or set it to \"auto\""
+        if step.requested == "auto" and simulation.scene.simulation.integrator == "implicit":
+            longer = "give simulation.dt a longer step"
+        elif step.requested == "auto":  # an explicit integrator's: the longest stable step
+            longer = "use integrator = \"implicit\" (\"auto\" took the longest stable step)"
         raise InputError(f"simulation.dt: {substeps:,} substeps of {step.dt:.3g} s × "
                          f"{simulation.model.particle_count:,} particles would take at least "
-                         f"{seconds / 3600:.1f} h (--max-hours {limits.max_hours:g}); raise "
-                         f"simulation.dt or set it to \"auto\", ask for fewer --frames, or pass "
-                         f"--max-hours {math.ceil(seconds / 3600)} to run it")
+                         f"{seconds / 3600:.1f} h (--max-hours {limits.max_hours:g}); {longer}, "
+                         f"ask for fewer --frames, or pass --max-hours "
+                         f"{math.ceil(seconds / 3600)} to run it")

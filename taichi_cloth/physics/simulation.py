@@ -275,8 +275,8 @@ class Simulation(RedoGuards):
             self._roll_back()
             self.set_time_step(self.time_step.dt / 2, 2 * self.time_step.substeps_per_frame)
         integrator = self.scene.simulation.integrator
-        if self.time_step.requested == "auto":
-            advice = f"set simulation.dt below the {self.time_step.dt:.3g} s that \"auto\" took"
+        if self.time_step.requested == "auto":  # the step it failed at, halvings included
+            advice = f"set simulation.dt below {self.time_step.dt:.3g} s"
         else:
             advice = "lower simulation.dt or set it to \"auto\""
         if integrator != "implicit":

@@ -39,7 +39,7 @@ from taichi_cloth.physics.integrators import INTEGRATORS, make_integrator
 from taichi_cloth.config.materials import Material
 from taichi_cloth.physics.model import Model
 from taichi_cloth.runtime import start_taichi, taichi_threads
-from taichi_cloth.config.scene import load_scene
+from taichi_cloth.config.scene import load_scene, refuse_lab_specimen
 from taichi_cloth.config.tables import ClothConfig
 from taichi_cloth.physics.control import Control
 from taichi_cloth.physics.packed_grid import packed_grid_for
@@ -342,7 +342,8 @@ def bench_command(sizes: str | None, integrators: str | None, scenes: str | None
         if not scene_names:
             raise InputError("--scene: give one or more scene names or files, comma-separated")
         for name in scene_names:
-            load_scene(name)  # a bad name fails before any measuring
+            refuse_lab_specimen(name)  # a bad name fails before any measuring
+            load_scene(name)
     say = None if quiet else (lambda message: print(f"bench: {message}", flush=True))
     rows, fits = run_bench(size_list, integrator_list, scene_names, seconds, repeats, arch, say,
                            profile, threads)

@@ -46,7 +46,7 @@ from taichi_cloth.flags import choice_list, number_list
 from taichi_cloth.output.files import write_csv, write_json
 from taichi_cloth.physics.integrators import INTEGRATORS
 from taichi_cloth.output.progress import Progress, announce
-from taichi_cloth.config.scene import arch_override, load_scene
+from taichi_cloth.config.scene import arch_override, load_scene, refuse_lab_specimen
 from taichi_cloth.physics.timestep import IMPLICIT_FRAME_FRACTION, TimeStep, fixed_time_step
 from taichi_cloth.runtime import start_taichi
 from taichi_cloth.studies.machine import machine_description
@@ -206,6 +206,7 @@ def compare(scene_name: str, overrides: list[str], integrators: str | None = Non
     seconds = seconds_value(duration, "--duration")
     reference_seconds = seconds_value(reference_dt, "--reference-dt")
     video_seconds = seconds_value(video_dt, "--video-dt")
+    refuse_lab_specimen(scene_name)
     extra, flags = arch_override(["simulation.precision=f64", *overrides], arch)
     scene = load_scene(scene_name, tuple(extra), flags)
     seconds = seconds or min(scene.scene.duration, DEFAULT_DURATION_CAP)

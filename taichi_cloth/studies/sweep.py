@@ -28,6 +28,7 @@ from dataclasses import asdict, dataclass
 from importlib import metadata
 from pathlib import Path
 
+from taichi_cloth.config.scene import load_scene, refuse_lab_specimen
 from taichi_cloth.errors import InputError, UnstableError
 from taichi_cloth.output.files import write_csv, write_json, write_png
 from taichi_cloth.output.folder import OwnedFolder
@@ -213,7 +214,6 @@ def run_job(job: SweepJob) -> dict:
     """Run ``job`` where this is called (any executor's worker): ``simulate`` into its folder,
     a thumbnail of its last frame, and its row, also written to ``result.json``. Every error is
     the run's own result, never raised: the sweep goes on."""
-    from taichi_cloth.config.scene import load_scene
     from taichi_cloth.output.replay import draw_cached_frame
     from taichi_cloth.output.run import run_scene
     from taichi_cloth.runtime import (field_trees, reset_taichi, start_taichi, taichi_started,
@@ -365,6 +365,7 @@ def make_plan(scene: str | None, grids: list[str], overrides: list[str], frames:
     if frames is not None and frames < 1:
         raise InputError(f"--frames {frames}: must be at least 1")
     scene_path = base["scene"]
+    refuse_lab_specimen(scene_path)
     if scene_path.endswith(".toml"):  # a worker elsewhere must find it whatever its directory
         scene_path = str(Path(scene_path).resolve())
     return SweepPlan(scene_path, tuple(base["set"]) + tuple(overrides), tuple(axes.items()),
