@@ -150,25 +150,31 @@ def tip_to_tip(gap: float) -> np.ndarray:
 
 
 @functools.cache
-def tip_to_tip_physics():
-    """The two fans' model (every particle 0.1 kg) with only the effect: (forces, state,
-    output field, the effect)."""
+def tip_to_tip_physics(lower_tip_mass: float = 0.1):
+    """The two fans' model (every particle 0.1 kg but the lower tip, ``lower_tip_mass``) with
+    only the effect: (forces, state, output field, the effect)."""
     fan = [[0, 1 + k, 1 + (k + 1) % 6] for k in range(6)]
     triangles = fan + [[7 + corner for corner in triangle] for triangle in fan]
-    model = Model(triangle_mesh(tip_to_tip(0.005), triangles, np.full(14, 0.1)), "f64")
+    mass = np.full(14, 0.1)
+    mass[7] = lower_tip_mass
+    model = Model(triangle_mesh(tip_to_tip(0.005), triangles, mass), "f64")
     physics = assemble(model, [(SelfCollision, SETTINGS)])
     return physics.forces, model.state(), ti.Vector.field(3, ti.f64, 14), physics.effects[0]
 
 
-def test_a_vertex_resting_on_a_vertex_is_pushed_by_every_pair_around_them():
+@pytest.mark.parametrize("lower_tip_mass", [0.1, 0.05])
+def test_a_vertex_resting_on_a_vertex_is_pushed_by_every_pair_around_them(lower_tip_mass):
     """Tip on tip, 4 mm apart: the upper tip is within the thickness of the lower fan's six
     triangles (its tip their closest point), the lower tip of the upper fan's six, and each of
     the upper tip's six edges of each of the lower tip's six (their ends the closest points):
-    6 + 6 + 36 = 48 pairs push the tips apart along y, m·k̂·(δ − 4 mm) each. So the mode of
-    the tips moving apart, measured from the forces by central differences, is 2·48·k̂: the
-    mode that ``dt = "auto"`` and the split of a given step take (docs/physics.md, "Time
-    step"); counting four contacts a particle there, the skirt of `hula-paper` was launched."""
-    forces, state, out, effect = tip_to_tip_physics()
+    6 + 6 + 36 = 48 pairs push the tips apart along y, k̂·(δ − 4 mm) times the upper tip's
+    mass, the lower tip's, and the four particles' mean. So the mode of the tips moving apart,
+    measured from the forces by central differences, is (1/m_0 + 1/m_7)·(their masses' sum)·k̂:
+    2·48·k̂ for equal masses, 121.5·k̂ with the lower tip half as heavy. It is the mode that
+    ``dt = "auto"`` and the split of a given step take (docs/physics.md, "Time step"), the
+    tips the mesh's most pushed pair of vertices; counting four contacts a particle there,
+    the skirt of `hula-paper` was launched."""
+    forces, state, out, effect = tip_to_tip_physics(lower_tip_mass)
     mass, gap, nudge = 0.1, 0.004, 1e-7
 
     def tips_force(x):
@@ -180,7 +186,8 @@ def test_a_vertex_resting_on_a_vertex_is_pushed_by_every_pair_around_them():
 
     x = tip_to_tip(gap)
     force = tips_force(x)
-    assert force[0] == pytest.approx([0.0, 48 * mass * K_HAT * (THICKNESS - gap), 0.0],
+    pushing_mass = 6 * mass + 6 * lower_tip_mass + 36 * (3 * mass + lower_tip_mass) / 4
+    assert force[0] == pytest.approx([0.0, pushing_mass * K_HAT * (THICKNESS - gap), 0.0],
                                      rel=1e-9, abs=1e-12)
     np.testing.assert_allclose(force.sum(axis=0), 0.0, atol=1e-12)
     apart, closer = x.copy(), x.copy()
@@ -188,10 +195,13 @@ def test_a_vertex_resting_on_a_vertex_is_pushed_by_every_pair_around_them():
     apart[7, 1] -= nudge
     closer[0, 1] -= nudge
     closer[7, 1] += nudge
-    change = tips_force(apart) - tips_force(closer)  # per 2·nudge of each tip
-    mode = -(change[0, 1] - change[7, 1]) / (2 * nudge) / (2 * mass)
-    assert mode == pytest.approx(2 * 48 * K_HAT, rel=1e-6)
-    assert effect.stability_modes() == [ContactMode(K_HAT, 0.0, contacts=2 * 48)]
+    change = tips_force(apart) - tips_force(closer)  # the tips 4·nudge further apart
+    mode = -(change[0, 1] / mass - change[7, 1] / lower_tip_mass) / (4 * nudge)
+    contacts = (1 / mass + 1 / lower_tip_mass) * pushing_mass
+    assert contacts == pytest.approx({0.1: 2 * 48, 0.05: 121.5}[lower_tip_mass], rel=1e-12)
+    assert mode == pytest.approx(contacts * K_HAT, rel=1e-6)
+    (stiffness, ratio, reported), = effect.stability_modes()
+    assert (stiffness, ratio) == (K_HAT, 0.0) and reported == pytest.approx(contacts, rel=1e-12)
 
 
 @pytest.mark.parametrize("thickness", [0.004, 0.001, 0.0005])
@@ -209,9 +219,16 @@ def test_unset_stiffness_stops_layers_closing_at_4_m_s_at_any_thickness(thicknes
         (SelfCollision, SelfCollisionSettings(thickness=thickness, stiffness=2e5))]).effects
     stops_4_m_s = fitted[0].stiffness
     assert 0.5 * stops_4_m_s * thickness ** 2 == pytest.approx(0.5 * 4.0 ** 2, rel=1e-12)
-    # two triangles: at most one at a vertex, two edges: a vertex on a vertex, 1 + 1 + 2·2 pairs
+    # a vertex p on a vertex q: the pairs of p with q's triangle (p's mass), of q with p's
+    # (q's), of each edge at p with each at q (their four masses' mean), each pushing the
+    # relative coordinate by (1/m_p + 1/m_q) per kilogram; the most over p ≠ q
+    triangles, edges = [(0, 1, 2), (3, 4, 5)], [(0, 1), (1, 2), (0, 2), (3, 4), (4, 5), (3, 5)]
+    contacts = max((1 / MASS[p] + 1 / MASS[q]) * (
+        sum(MASS[p] for t in triangles if q in t) + sum(MASS[q] for t in triangles if p in t)
+        + sum(MASS[[*e, *f]].mean() for e in edges if p in e for f in edges if q in f))
+        for p in range(6) for q in range(6) if p != q)
     mode, = fitted[0].stability_modes()
-    assert (mode.stiffness, mode.contacts) == (stops_4_m_s, 2 * 6)
+    assert mode.stiffness == stops_4_m_s and mode.contacts == pytest.approx(contacts, rel=1e-12)
     chosen, given_step = TimeStep(1 / 60, 2, "auto"), fixed_time_step(1 / 60, 1 / 30)
     for effect, step, integrator, bound in ((fitted[0], chosen, "symplectic", math.inf),
                                             (fitted[1], given_step, "symplectic", 1e6),
@@ -239,16 +256,19 @@ def test_a_given_explicit_step_is_split_until_the_penalty_is_stable():
     """`hula-paper` (FB Euler at the paper's 2 ms) with self-collision: its penalty (10⁶ 1/s²)
     is unstable at 2 ms, where it stretched the skirt 42 % without ever blowing up
     (docs/physics.md, "Time step"). The run splits the step below the bound of the stiffest
-    mode, a vertex on a vertex (48 pairs on its grid: 2·48·10⁶ 1/s²), whose frictions'
-    regularised dampers add to ζ = √96: FB Euler is stable for ωh ≤ 2(√(ζ² + 1) − ζ) (its
-    amplification matrix's trace and determinant); it keeps the 2 ms it was asked for."""
+    mode, a vertex on a vertex (48 pairs on its grid, n = 2·48 contacts for equal masses, more
+    as its rows' masses differ: ω = √(n·10⁶)), whose frictions' regularised dampers add to
+    ζ = √n: FB Euler is stable for ωh ≤ 2(√(ζ² + 1) − ζ) (its amplification matrix's trace and
+    determinant); it keeps the 2 ms it was asked for."""
     simulation = Simulation.from_scene("hula-paper", ("effects.self_collision=true",))
     effect = next(e for e in simulation.effects if e.name == "self_collision")
     step = simulation.time_step
     assert effect.stiffness == 1e6 and step.requested == 0.002
-    ratio = math.sqrt(96)
+    contacts = effect.stability_modes()[0].contacts
+    assert 2 * 48 < contacts < 2 * 48 * 1.2  # its masses differ from row to row, and at the hem
+    ratio = math.sqrt(contacts)
     assert step.stable_dt == pytest.approx(2 * (math.sqrt(ratio ** 2 + 1) - ratio)
-                                           / math.sqrt(96e6), rel=1e-6)
+                                           / math.sqrt(contacts * 1e6), rel=1e-6)
     assert step.dt <= simulation.scene.simulation.safety * step.stable_dt * (1 + 1e-9)
 
 

@@ -53,7 +53,7 @@ from taichi_cloth.effects.penalty import ContactMode, normal_force_magnitude, pe
 from taichi_cloth.effects.piercing import intersections_around
 from taichi_cloth.effects.proximity import VERTEX_TRIANGLE, inside_within, pair_geometry
 from taichi_cloth.effects.self_collision_stiffness import (
-    default_stiffness, fitted_stiffness, redo_stiffness, vertex_on_vertex_pairs)
+    default_stiffness, fitted_stiffness, redo_stiffness, vertex_on_vertex_contacts)
 from taichi_cloth.effects.unstretch import unstretch
 from taichi_cloth.errors import InputError
 from taichi_cloth.settings import setting
@@ -413,7 +413,8 @@ class SelfCollision(Effect):
         return self.stiffness != chosen
 
     def stability_modes(self) -> list[ContactMode]:
-        """Two vertices resting on each other, n = ``vertex_on_vertex_pairs`` pairs pushing
-        their relative coordinate as 2n contacts (docs/physics.md, "Self-collision")."""
-        pairs = vertex_on_vertex_pairs(self.model.garment.triangles, self.model.garment.edges)
-        return [ContactMode(self.stiffness, self.damping_ratio, contacts=2 * pairs)]
+        """Two vertices resting on each other, every pair around them pushing their relative
+        coordinate (``vertex_on_vertex_contacts``; docs/physics.md, "Self-collision")."""
+        garment = self.model.garment
+        return [ContactMode(self.stiffness, self.damping_ratio, contacts=vertex_on_vertex_contacts(
+            garment.triangles, garment.edges, garment.mass, garment.pinned))]

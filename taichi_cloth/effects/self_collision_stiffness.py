@@ -9,8 +9,9 @@ any step: the tunnelling guard, which redoes such a frame at a half, a quarter, 
 stiffens the penalty 4× a halving (``redo_stiffness``), k̂·dt² staying what the run's step was
 chosen for.
 
-Also the most pairs that push on one contact (``vertex_on_vertex_pairs``), which sets the
-penalty's stiffest mode for an explicit step (``SelfCollision.stability_modes``).
+Also how many contacts push two vertices resting on each other apart, at most
+(``vertex_on_vertex_contacts``), which sets the penalty's stiffest mode for an explicit step
+(``SelfCollision.stability_modes``).
 """
 
 import numpy as np
@@ -23,6 +24,7 @@ STEP_STIFFNESS = 300.0  # k̂·dt² at most for backward Euler (its blocks leave
 REDO_STIFFENING = 4.0  # a frame the tunnelling guard redoes at half the step: 4 × the stiffness,
 # so twice the closing speed stopped (a fold closing faster than the penalty stops tunnels at any
 # step), with k̂·dt², and so the step's stability, as before
+CONTACT_ROWS = 512  # rows of vertex pairs at a time in ``vertex_on_vertex_contacts``
 
 
 def default_stiffness(thickness: float) -> float:
@@ -48,12 +50,43 @@ def redo_stiffness(stiffness: float, halvings: int) -> float:
     return stiffness * REDO_STIFFENING ** halvings
 
 
-def vertex_on_vertex_pairs(triangles: np.ndarray, edges: np.ndarray) -> int:
-    """The most pairs that push on one contact, (T, 3) ``triangles`` and (E, 2) ``edges`` of
-    particle indices: a vertex p resting on a vertex q of another layer is within the thickness
-    of each triangle at q, q of each triangle at p, and each edge at p of each edge at q, all
-    along the same normal: T(p) + T(q) + E(p)·E(q) pairs (T, E: the triangles and edges at a
-    vertex; 6 + 6 + 36 = 48 on a regular grid), taken at the mesh's most."""
-    most_triangles = int(np.bincount(triangles.ravel()).max())
-    most_edges = int(np.bincount(edges.ravel()).max())
-    return 2 * most_triangles + most_edges ** 2
+def vertex_on_vertex_contacts(triangles: np.ndarray, edges: np.ndarray, mass: np.ndarray,
+                              pinned: np.ndarray) -> float:
+    """How many contacts of stiffness k̂ push two vertices resting on each other apart, at the
+    mesh's most: the count n of self-collision's stiffest mode (``penalty.ContactMode``), for
+    (T, 3) ``triangles`` and (E, 2) ``edges`` of particle indices, particle ``mass`` [kg] and
+    ``pinned`` (N,) bools. A vertex p resting on a vertex q of another layer is within the
+    thickness of each triangle at q, q of each triangle at p, and each edge at p of each edge
+    at q, all along one normal: T(p) + T(q) + E(p)·E(q) pairs (T, E: the triangles and edges at
+    a vertex; 6 + 6 + 36 = 48 on a regular grid). A vertex–triangle pair pushes with its
+    vertex's mass, an edge–edge pair with its four particles' mean (``SelfCollision``), each on
+    both vertices with weight 1, so the vertices' relative coordinate feels n(p, q)·k̂ with
+
+        n(p, q) = (1/m_p + 1/m_q)·(T(q)·m_p + T(p)·m_q + (E(q)·M(p) + E(p)·M(q))/4),
+
+    M(v) the sum of the masses at the ends of v's edges and 1/m = 0 for a pinned (or
+    massless) particle: 2·48 = 96 on a regular grid of equal masses, more where neighbouring
+    masses differ (a graded or irregular mesh: ~125 on ``twirl``'s circle skirt). The largest
+    over all p ≠ q, taken over the vertices' distinct (T, E, m, M, 1/m) (a grid has a few
+    dozen), in blocks of rows."""
+    count = len(mass)
+    edges = np.asarray(edges)
+    end_mass = np.zeros(count)
+    np.add.at(end_mass, edges.ravel(), np.repeat(mass[edges].sum(axis=1), 2))
+    kinds, members = np.unique(np.column_stack([
+        np.bincount(np.asarray(triangles).ravel(), minlength=count),
+        np.bincount(edges.ravel(), minlength=count), mass, end_mass,
+        np.divide(1.0, mass, out=np.zeros(count), where=~pinned & (mass > 0))]),
+        axis=0, return_counts=True)
+    triangles_at, edges_at, kind_mass, kind_end_mass, inverse = kinds.T
+    most = 0.0
+    for first in range(0, len(kinds), CONTACT_ROWS):
+        rows = slice(first, min(first + CONTACT_ROWS, len(kinds)))
+        n = (inverse[rows, None] + inverse[None, :]) * (
+            np.outer(kind_mass[rows], triangles_at) + np.outer(triangles_at[rows], kind_mass)
+            + 0.25 * (np.outer(kind_end_mass[rows], edges_at)
+                      + np.outer(edges_at[rows], kind_end_mass)))
+        alone = np.flatnonzero(members[rows] == 1)  # a vertex is not on itself
+        n[alone, rows.start + alone] = 0.0
+        most = max(most, float(n.max(initial=0.0)))
+    return most
