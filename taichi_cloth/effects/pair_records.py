@@ -42,10 +42,6 @@ class PairRecords:
         self.reference_x, self.kept_reference_x, self.last_x, self.kept_last_x = (
             ti.Vector.field(3, real, particles) for _ in range(4))
         self.committed, self.kept_committed = ti.field(ti.i32, ()), ti.field(ti.i32, ())
-        # the list's builds and dropped pairs at a redone frame's start: its discarded tries add
-        # none, so a run counts those of the steps it kept (and warns of an overflow only where
-        # one may have missed a contact)
-        self.kept_counts = ti.field(ti.i32, 2)
 
     @ti.func
     def _copy_row(self, owner, source: ti.template(), target: ti.template()):
@@ -174,14 +170,12 @@ class PairRecords:
 
     @ti.kernel
     def back_up(self):
-        """The rows with their records kept, and the counts (the start of a frame that may be
-        redone)."""
+        """The rows with their records kept (the start of a frame that may be redone)."""
         for owner in self.found_count:
             self._copy_row(owner, ti.static(self.rows), ti.static(self.kept_rows))
         for i in self.last_x:
             self.kept_reference_x[i], self.kept_last_x[i] = self.reference_x[i], self.last_x[i]
         self.kept_committed[None] = self.committed[None]
-        self.kept_counts[0], self.kept_counts[1] = self.rebuilds[None], self.overflow[None]
 
     @ti.kernel
     def roll_back(self):
@@ -192,7 +186,6 @@ class PairRecords:
         for i in self.last_x:
             self.reference_x[i], self.last_x[i] = self.kept_reference_x[i], self.kept_last_x[i]
         self.committed[None] = self.kept_committed[None]
-        self.rebuilds[None], self.overflow[None] = self.kept_counts[0], self.kept_counts[1]
         self.rebuild_asked[None] = 1
 
     @ti.kernel

@@ -27,9 +27,8 @@ around it (a record that no crossing witnesses gives way, also after the step's 
 put-backs) and the move leaves fewer. For the records, inside is within a thickness of it.
 
 Candidate pairs (``effects/candidate_pairs.py``): every pair within the reach, thickness +
-padding, in one compact list, less the pairs within flat stretches of cloth, which hold no layers
-(``effects/mesh_patches.py``), rebuilt only when the cloth has deformed (its best rigid motion
-taken out) by half the padding since the last build.
+padding, in one list, less those in flat stretches, which hold no layers (``mesh_patches.py``),
+rebuilt when the cloth has deformed (its best rigid motion taken out) by half the padding.
 
 Gathered, no atomics on forces: each pair's force (and blocks) is computed once per evaluation,
 with each of its four particles' share weight; a particle sums its entries' shares in list
@@ -37,8 +36,8 @@ order, so a run is bit-reproducible. The CPU only (``config.scene`` refuses a GP
 these kernels did not finish compiling in 7 minutes); its loops run on one thread (a second
 costs more than it gains at these sizes). Implicit integrator: per-particle blocks of each pair
 (w²-weighted), the couplings between a pair's particles left out; tunnelling, the thickness
-bound, the stable step and the measured cost: docs/physics.md. The stiffness when the scene
-gives none, and the most pairs on one contact: ``effects/self_collision_stiffness.py``.
+bound, the stable step and the cost: docs/physics.md. The default stiffness and the stiffest
+mode's contacts: ``effects/self_collision_stiffness.py``.
 """
 
 from dataclasses import dataclass
@@ -92,9 +91,8 @@ class SelfCollision(Effect):
 
     def __init__(self, settings: SelfCollisionSettings, context: EffectContext):
         super().__init__(settings, context)
-        model = context.model
+        model = self.model = context.model
         garment = model.garment
-        self.model = model
         self.blocks = context.needs_jacobian  # the implicit solver's blocks, else none
         real = model.real
         rest = np.linalg.norm(np.diff(garment.positions[garment.edges], axis=1), axis=2)
@@ -108,8 +106,7 @@ class SelfCollision(Effect):
         if not self.stiffness_given:
             self.stiffness = default_stiffness(self.thickness)
         self.damping_ratio, self.friction = settings.damping, settings.friction
-        # 1/s²: the stiffness the kernels read, the run's or a redone frame's (``follow_redo``)
-        self.stiffness_now = ti.field(real, ())
+        self.stiffness_now = ti.field(real, ())  # 1/s², the run's or a redone frame's
         self.padding = PADDING * settings.thickness  # m: the list holds pairs within reach
         self.pairs = CandidatePairs(model, settings.thickness, self.padding)
         self.reach = self.pairs.reach  # m: thickness + padding
@@ -117,6 +114,8 @@ class SelfCollision(Effect):
         self.moved = ti.field(ti.i32, ())  # pairs a sweep of ``apply`` put back
         self.separations = ti.field(ti.i32, ())  # pairs put back since the start
         self.refusals = ti.field(ti.i32, ())  # put-backs not made since the start (``_sweep_pair``)
+        # put back with a redone frame: a run counts what its kept steps did (``back_up``)
+        self._counts = (self.separations, self.refusals, self.pairs.rebuilds, self.pairs.overflow)
         # per post step: the positions before its sweeps [m], whether a sweep moved a particle
         self.unswept_x = ti.Vector.field(3, real, model.particle_count)
         self.lifted = ti.field(ti.i32, model.particle_count)
@@ -358,11 +357,12 @@ class SelfCollision(Effect):
 
     def back_up(self) -> None:
         self.pairs.back_up()
-        self._kept_counts = (self.separations[None], self.refusals[None])  # (a redo's own: not)
+        self._kept_counts = [count[None] for count in self._counts]
 
     def roll_back(self) -> None:
         self.pairs.roll_back()
-        self.separations[None], self.refusals[None] = self._kept_counts
+        for count, kept in zip(self._counts, self._kept_counts):
+            count[None] = kept
 
     def forget_history(self) -> None:
         self.pairs.forget()
