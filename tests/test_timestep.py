@@ -273,7 +273,8 @@ def test_a_requested_step_is_split_until_the_bounding_modes_are_stable(integrato
     step) are not looked at. A request within the bound, and backward Euler, are not split."""
     stiffness, safety = 4e6, 0.8
     modes = dict(damping_time=0.0, contact_modes=[ContactMode(stiffness, 0.5)], safety=safety,
-                 bounding_modes=[ContactMode(stiffness, 0.5)], **one_spring(1e3))
+                 bounding_modes={"self_collision": [ContactMode(stiffness, 0.5)]},
+                 **one_spring(1e3))
     step = choose_time_step(0.002, FRAME, integrator, **modes)
     bound = limit / math.sqrt(stiffness)
     assert step.stable_dt == pytest.approx(bound, rel=1e-6)
@@ -295,7 +296,8 @@ def test_an_undamped_bounding_penalty_under_explicit_euler_is_refused():
     with pytest.raises(InputError, match="effects.self_collision.damping"):
         undamped = [ContactMode(1e6, 0.0)]
         choose_time_step(0.002, FRAME, "euler", damping_time=0.0, contact_modes=undamped,
-                         safety=0.8, bounding_modes=undamped, **one_spring(10.0))
+                         safety=0.8, bounding_modes={"self_collision": undamped},
+                         **one_spring(10.0))
 
 
 @pytest.mark.parametrize("integrator, dt, retries, advised, not_advised", [

@@ -115,11 +115,12 @@ class Simulation(RedoGuards):
 
     def _choose_time_step(self) -> TimeStep:
         scene, garment, model = self.scene, self.garment, self.model
-        contact_modes, bounding_modes = [], []
+        contact_modes, bounding_modes = [], {}
         for effect in self.effects:
             modes = effect.stability_modes()
             contact_modes += modes
-            bounding_modes += modes if effect.bounds_given_step else []
+            if effect.bounds_given_step:
+                bounding_modes[effect.name] = modes
         return choose_time_step(
             scene.simulation.dt, self.frame_duration, scene.simulation.integrator,
             garment.positions, model.host_spring_ends, model.host_stiffness, garment.mass,

@@ -113,23 +113,28 @@ def fixed_time_step(requested: float, frame_duration: float,
 
 def choose_time_step(requested, frame_duration: float, integrator: str, positions, ends, stiffness,
                      mass, free, damping_time: float, contact_modes, safety: float,
-                     coupled=(), pin_drive=lambda: (0.0, 0.0), bounding_modes=()) -> TimeStep:
+                     coupled=(), pin_drive=lambda: (0.0, 0.0),
+                     bounding_modes: dict | None = None) -> TimeStep:
     """The substep for a frame of ``frame_duration`` [s]; ``requested`` is seconds or "auto".
     contact_modes: the ``effects.penalty.ContactMode`` of each declared contact (collision,
     ground, self-collision); coupled: the effects whose Hessian adds to the springs'
     (``highest_frequency``); pin_drive: a function giving (a_pin [m/s²], ℓ_pin [m]) (module
-    docstring), called for backward Euler's auto step; bounding_modes: the contact modes that
-    bound a step in seconds too (an explicit integrator's step split until they are stable:
-    self-collision's penalty, whose instability stays within its band and so never blows up
-    where the frame guard would see it)."""
+    docstring), called for backward Euler's auto step; bounding_modes: by effect name, the
+    contact modes that bound a step in seconds too (an explicit integrator's step split until
+    they are stable: self-collision's penalty, whose instability stays within its band and so
+    never blows up where the frame guard would see it; an undamped one under explicit Euler,
+    stable at no step, is refused naming the effect's damping key)."""
     if requested != "auto":
         stable = None
         if integrator != "implicit" and bounding_modes:
-            stable = contact_step_limit(integrator, bounding_modes)
-            if stable <= 0.0:
-                raise InputError(f"effects.self_collision.damping: {integrator} is stable at no "
-                                 f"step for an undamped penalty; give it damping or choose "
-                                 f"another integrator")
+            limits = {name: contact_step_limit(integrator, modes)
+                      for name, modes in bounding_modes.items()}
+            for name, limit in limits.items():
+                if limit <= 0.0:
+                    raise InputError(f"effects.{name}.damping: {integrator} is stable at no "
+                                     f"step for an undamped penalty; give it damping or choose "
+                                     f"another integrator")
+            stable = min(limits.values())
         return fixed_time_step(requested, frame_duration, stable, safety)
     omega_spring = highest_frequency(positions, ends, stiffness, mass, free, coupled=coupled)
     contact_stiffness = max((mode.summed_stiffness for mode in contact_modes), default=0.0)
