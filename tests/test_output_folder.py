@@ -263,6 +263,8 @@ def test_the_summary_says_when_a_given_step_was_split_for_self_collision():
         said = [line for line in text.splitlines() if "split below the scene's 0.002 s" in line]
         assert len(said) == shown and all(len(line) <= 100 for line in said)
         assert not shown or "0.000414 s" in said[0]
+        advice = [line for line in text.splitlines() if "simulation.integrator=implicit" in line]
+        assert len(advice) == shown and all(len(line) <= 100 for line in advice)
 
 
 def test_the_summary_says_how_to_add_self_collision_only_where_the_cloth_crossed_without_it():

@@ -279,10 +279,10 @@ def resume_command() -> str:
 
 def summary(stats: dict, directory: Path) -> str:
     """A few lines of at most 100 columns (the folder's path aside): frames, integrator and step
-    (and how ``dt = "auto"`` chose it); a settling that took a smaller step or did not come to
-    rest; strain, penetration and self-crossings (with how to add
-    self-collision where the cloth crossed itself without it); seconds per phase and where the
-    files are."""
+    (and how ``dt = "auto"`` chose it, or why a given one was split, with the integrator that
+    takes it whole); a settling that took a smaller step or did not come to rest; strain,
+    penetration and self-crossings (with how to add self-collision where the cloth crossed
+    itself without it); seconds per phase and where the files are."""
     seconds = ", ".join(f"{phase} {value:.2f} s" for phase, value in stats["wall_seconds"].items())
     step = stats["time_step"]
     retries = f", {stats['retries']} halvings" if stats["retries"] else ""
@@ -296,6 +296,8 @@ def summary(stats: dict, directory: Path) -> str:
     elif step.get("stable_dt") is not None:
         lines.append(f"  dt split below the scene's {step['requested']:g} s: self-collision's "
                      f"penalty is stable up to {step['stable_dt']:.3g} s")
+        lines.append("  (backward Euler takes the scene's step with it: "
+                     "--set simulation.integrator=implicit)")
     settled = stats.get("settle")
     if settled and settled.get("step_halvings"):
         lines.append(f"  settled at 1/{2 ** settled['step_halvings']} of the scene's step, "
