@@ -18,7 +18,9 @@ Genesis' ``force_fields.py``). What an effect declares:
   nothing by default. A serial integrator may run it inside one serial loop (no thread-pool
   hand-offs), unless ``arranges_own_passes`` (its passes keep the serial and parallel loops it
   gives them: self-collision's rebuild, whose walks inlined into one serial loop compile 13 s
-  longer).
+  longer). ``prepares_on_one_thread``: its passes run on one thread in any launch, so a launch
+  made parallel for the particle loops pays the thread pool's hand-offs around them and gains
+  nothing there (the integrator then stays on one thread up to ``SERIAL_PARTICLE_LIMIT``).
 - ``has_jacobian`` and ``local_jacobian(model, x, v, i_p, t, definite)``: its per-particle blocks
   (∂f_i/∂x_i, ∂f_i/∂v_i) for the implicit solver, or ``has_jacobian = False`` when it has none
   (a constant force). An effect that couples particles (bending) sets ``has_coupled_jacobian``
@@ -107,6 +109,7 @@ class Effect:
     has_coupled_jacobian = False
     needs_body = False  # the scene must have a [body] section
     arranges_own_passes = False  # ``prepare``'s loops stay as it configures them
+    prepares_on_one_thread = False  # ``prepare``'s loops are all serial (module docstring)
     bounds_given_step = False  # its ``stability_modes`` split a step in seconds too
     uniform_acceleration = None
     touched_particles = None

@@ -86,7 +86,7 @@ class SelfCollision(Effect):
     name = "self_collision"
     Settings = SelfCollisionSettings
     has_jacobian = True
-    arranges_own_passes = True  # the list's build and sweeps on one thread
+    arranges_own_passes = prepares_on_one_thread = True  # its build and sweeps on one thread
     bounds_given_step = True  # a given explicit step split for the penalty (docs/physics.md)
 
     def __init__(self, settings: SelfCollisionSettings, context: EffectContext):

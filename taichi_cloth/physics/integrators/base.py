@@ -70,8 +70,13 @@ class Integrator:
         self.control = control
         self.post_step = post_step
         self.has_post_step = post_step is not None
-        # one thread, a whole frame per launch: on the CPU only (``runtime.runs_on_cpu``)
-        self.serial = self.model.particle_count <= self.serial_particle_limit and runs_on_cpu()
+        # one thread, a whole frame per launch: on the CPU only (``runtime.runs_on_cpu``); an
+        # integrator's own lower limit is for its particle loops, which a force evaluation on
+        # one thread (``prepares_on_one_thread``) would leave waiting: then the base's
+        limit = self.serial_particle_limit
+        if any(effect.prepares_on_one_thread for effect in forces.prepared_effects):
+            limit = max(limit, SERIAL_PARTICLE_LIMIT)
+        self.serial = self.model.particle_count <= limit and runs_on_cpu()
 
     def memory(self) -> dict:
         """Host copies of what the integrator carries from step to step besides the state
